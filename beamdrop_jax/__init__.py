@@ -1,0 +1,29 @@
+"""beamdrop_jax: a differentiable JAX simulator of what a drop does to the board inside a device."""
+
+from ._checks import Flag as Flag, GRAVITY as GRAVITY
+from ._scene import (
+    Board as Board,
+    Contact as Contact,
+    Drop as Drop,
+    Housing as Housing,
+    Placement as Placement,
+    Scene as Scene,
+    board_ends as board_ends,
+    check_scene as check_scene,
+    embedded_scenes as embedded_scenes,
+    load_scene as load_scene,
+    save_scene as save_scene,
+    scene_flags as scene_flags,
+)
+from ._impact import ImpactMode as ImpactMode, ImpactResult as ImpactResult, routh_impulse as routh_impulse
+from ._kinematics import (
+    HousingImpact as HousingImpact,
+    approach_velocity as approach_velocity,
+    body_axes as body_axes,
+    contact_matrix as contact_matrix,
+    housing_impact as housing_impact,
+    lowest_corner as lowest_corner,
+    support_jumps as support_jumps,
+)
+
+__version__ = "0.1.0"

@@ -1,0 +1,108 @@
+"""Input checks: eager errors that name the field and range, and flags for use under `jit`.
+
+Every check has two faces. When its value is concrete (eager Python), a bad value raises `ValueError` naming the
+field, the value and the valid range. When its value is traced (inside `jit`, `vmap`, `grad`) no exception is
+possible, so the same condition is returned as a bit in an integer `Flag` mask that results carry.
+"""
+
+import enum
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+class Flag(enum.IntFlag):
+    """Bits of the `flags` field that results carry. `Flag.OK` (0) means the result can be trusted."""
+
+    OK = 0
+    NONFINITE_INPUT = 1
+    NONPOSITIVE_SIZE = 2
+    RESTITUTION_RANGE = 4
+    FRICTION_NEGATIVE = 8
+    DURATION_NEGATIVE = 16
+    BOARD_OUTSIDE_HOUSING = 32
+    BUCKLED = 64
+    DAMPING_RANGE = 128
+    FLAT_LANDING_WITH_MOTION = 256
+    SEPARATING_CONTACT = 512
+    SOLVER_FAILED = 1024
+    NEGATIVE_HEIGHT = 2048
+    PIVOTING_CONTACT = 4096
+
+    @classmethod
+    def describe(cls, flags) -> list[str]:
+        """Names of the bits set in an integer mask (for messages and reports)."""
+        value = int(flags)
+        return [f.name for f in cls if f.value and value & f.value]
+
+
+def is_concrete(*values) -> bool:
+    """True when no value is a JAX tracer, so it can be inspected eagerly."""
+    return not any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(values))
+
+
+def _fmt(bound, open_, side):
+    if bound is None:
+        return ""
+    bracket = ("(" if open_ else "[") if side == "lo" else (")" if open_ else "]")
+    return f"{bracket}{bound:g}" if side == "lo" else f"{bound:g}{bracket}"
+
+
+def in_range(value, lo=None, hi=None, *, lo_open=False, hi_open=False):
+    """Boolean array: finite and inside the interval (traceable)."""
+    value = jnp.asarray(value)
+    ok = jnp.isfinite(value)
+    if lo is not None:
+        ok = ok & ((value > lo) if lo_open else (value >= lo))
+    if hi is not None:
+        ok = ok & ((value < hi) if hi_open else (value <= hi))
+    return ok
+
+
+def require(value, name: str, lo=None, hi=None, *, lo_open=False, hi_open=False, unit: str = ""):
+    """Raise `ValueError` if a concrete `value` is non-finite or outside the interval; no-op when traced."""
+    if not is_concrete(value):
+        return
+    arr = np.asarray(value, dtype=float)
+    ok = np.isfinite(arr)
+    if lo is not None:
+        ok &= (arr > lo) if lo_open else (arr >= lo)
+    if hi is not None:
+        ok &= (arr < hi) if hi_open else (arr <= hi)
+    if not np.all(ok):
+        bad = arr[~ok] if arr.ndim else arr
+        lo_s = _fmt(lo, lo_open, "lo") if lo is not None else "(-inf"
+        hi_s = _fmt(hi, hi_open, "hi") if hi is not None else "inf)"
+        u = f" {unit}" if unit else ""
+        shown = np.array2string(np.asarray(bad).ravel()[:3], precision=6) if np.ndim(bad) else f"{float(bad):g}"
+        raise ValueError(f"{name} = {shown}{u} is outside the valid range {lo_s}, {hi_s}{u} (finite values only)")
+
+
+def flag_if(condition, flag: Flag):
+    """`flag` where `condition` holds, else 0, as an int32 array (traceable)."""
+    return jnp.where(condition, jnp.int32(flag.value), jnp.int32(0))
+
+
+def combine(*flags):
+    """Bitwise-or of flag arrays (broadcasting)."""
+    out = jnp.int32(0)
+    for f in flags:
+        out = out | jnp.asarray(f, jnp.int32)
+    return out
+
+
+def raise_if_flagged(flags, what: str) -> None:
+    """Eagerly turn a concrete non-zero flag mask into a `ValueError` listing the problems."""
+    if not is_concrete(flags):
+        return
+    value = np.bitwise_or.reduce(np.asarray(flags, dtype=np.int64).ravel()) if np.ndim(flags) else int(flags)
+    if value:
+        raise ValueError(f"{what}: {', '.join(Flag.describe(value))}")
+
+
+GRAVITY = 9.80665
+"""Standard gravity, m/s^2."""
+
+DEG = math.pi / 180.0

@@ -1,0 +1,242 @@
+"""Routh's frictional impact law for one 2D contact, in closed form.
+
+The contact velocity (S, C) (tangential, normal) moves linearly with the impulse P = (Pt, Pn):
+(S, C) = (S0, C0) + B P, with B = [[B1, -B3], [-B3, B2]] symmetric positive definite. The normal impulse Pn grows
+monotonically, and between events the impulse path is a straight line, so Routh's graphical method is exact:
+
+1. slide with s = sign(S0) (for S0 = 0: stick at once if mu >= |B3|/B1, else slide with s = -sign(B3)),
+   dPt/dPn = -s mu;
+2. if mu B1 + s B3 > 0 the slip stops on the stick line S = 0 at Pn_s = |S0| / (mu B1 + s B3);
+3. on the stick line it stays stuck (dPt/dPn = B3/B1) when mu >= |B3|/B1, otherwise slip reverses for good
+   (dPt/dPn = s mu).
+
+So the path has at most two straight pieces and the normal velocity C(Pn) is piecewise linear. Maximum compression is
+the first point where C = 0; the restitution law picks the termination point on the same path. Every division is
+guarded (`_safe_div`), so the untaken branches of `jnp.where` cannot put NaN into gradients (jax#1052).
+
+References: Routh (1905); Wang & Mason, "Two-dimensional rigid-body collisions with friction", J. Appl. Mech. 59
+(1992); Stronge, "Impact Mechanics" (2000).
+"""
+
+import enum
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int
+
+from ._checks import Flag, flag_if, in_range, combine
+
+
+class ImpactMode(enum.IntEnum):
+    """How the contact slips during the impact (Wang & Mason's cases)."""
+
+    SLIDING = 0
+    """Slides in one direction throughout."""
+    STICK_IN_COMPRESSION = 1
+    """Slip stops (or never starts) before maximum compression and the contact stays stuck."""
+    STICK_IN_RESTITUTION = 2
+    """Slip stops after maximum compression and the contact stays stuck."""
+    REVERSAL_IN_COMPRESSION = 3
+    """Slip stops before maximum compression and reverses (mu < |B3|/B1)."""
+    REVERSAL_IN_RESTITUTION = 4
+    """Slip stops after maximum compression and reverses."""
+
+    @property
+    def label(self) -> str:
+        return self.name.lower().replace("_", " ")
+
+
+LAWS = ("poisson", "newton", "stronge")
+
+
+class ImpactResult(eqx.Module):
+    """Outcome of one impact.
+
+    - `P`: final impulse (Pt, Pn), N s.
+    - `Pn_compression`: normal impulse at maximum compression.
+    - `Pn_stick`: normal impulse where slip stops or reverses (inf when it never does).
+    - `mode`: an `ImpactMode` value (int array).
+    - `velocity`: contact velocity (S, C) after the impact.
+    - `energy_change`: change of kinetic energy, J (<= 0 for Poisson and Stronge).
+    - `path`: vertices of the impulse path, (3, 2) rows (Pt, Pn): start, stick/reversal point (clipped to the
+      end), end.
+    - `flags`: `Flag` mask (SEPARATING_CONTACT when C0 > 0: then P = 0).
+    """
+
+    P: Float[Array, "2"]
+    Pn_compression: Float[Array, ""]
+    Pn_stick: Float[Array, ""]
+    mode: Int[Array, ""]
+    velocity: Float[Array, "2"]
+    energy_change: Float[Array, ""]
+    path: Float[Array, "3 2"]
+    flags: Int[Array, ""]
+
+
+def _safe_div(num, den, ok):
+    """num / den where `ok`, else 0; the untaken branch divides by 1 so its gradient stays finite."""
+    den_safe = jnp.where(ok, den, 1.0)
+    return jnp.where(ok, num / den_safe, 0.0)
+
+
+def _safe_sqrt(x):
+    ok = x > 0
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, x, 1.0)), 0.0)
+
+
+class _Path(eqx.Module):
+    """The impulse path as two straight pieces in Pn: [0, Pn_s] and [Pn_s, inf)."""
+
+    Pn_s: Array  # end of piece 1 (inf when slip never stops)
+    has_stick: Array
+    dPt1: Array  # dPt/dPn on each piece
+    dPt2: Array
+    dC1: Array  # dC/dPn on each piece
+    dC2: Array
+    C0: Array
+    stays_stuck: Array
+
+    def C_at_stick(self):
+        return self.C0 + self.dC1 * jnp.where(self.has_stick, self.Pn_s, 0.0)
+
+    def Pt(self, Pn):
+        first = jnp.minimum(Pn, self.Pn_s)
+        second = jnp.maximum(Pn - self.Pn_s, 0.0)
+        return self.dPt1 * first + jnp.where(self.has_stick, self.dPt2 * second, 0.0)
+
+    def Pn_where_C_reaches(self, target):
+        """First Pn >= 0 at which C = target (target >= 0 > C0), with division only by positive slopes."""
+        rise = target - self.C0
+        # On piece 1 iff it rises (dC1 > 0) and gets there before the stick point: rise <= dC1 Pn_s.
+        on_first = (self.dC1 > 0) & (~self.has_stick | (rise <= self.dC1 * jnp.where(self.has_stick, self.Pn_s, 0.0)))
+        pn_first = _safe_div(rise, self.dC1, on_first)
+        pn_second = jnp.where(self.has_stick, self.Pn_s, 0.0) + _safe_div(
+            target - self.C_at_stick(), self.dC2, ~on_first
+        )
+        return jnp.where(on_first, pn_first, pn_second)
+
+    def work(self, Pn):
+        """Normal work integral of C dPn from 0 to Pn (trapezoids are exact on the linear pieces)."""
+        pn_s = jnp.where(self.has_stick, self.Pn_s, jnp.inf)
+        p1 = jnp.minimum(Pn, pn_s)
+        w1 = self.C0 * p1 + 0.5 * self.dC1 * p1**2
+        p2 = jnp.maximum(Pn - jnp.where(self.has_stick, self.Pn_s, 0.0), 0.0)
+        p2 = jnp.where(self.has_stick, p2, 0.0)
+        w2 = self.C_at_stick() * p2 + 0.5 * self.dC2 * p2**2
+        return w1 + w2
+
+
+def _path(B, v0, mu) -> _Path:
+    B1, B2, B3 = B[0, 0], B[1, 1], -B[0, 1]
+    S0, C0 = v0[0], v0[1]
+    sign_B3 = jnp.where(B3 >= 0, 1.0, -1.0)
+    # S0 = 0: slide against B3 (if friction cannot hold, that is the only consistent direction; if it can, the
+    # stick point is at Pn = 0 below and the direction never matters).
+    s = jnp.where(S0 > 0, 1.0, jnp.where(S0 < 0, -1.0, -sign_B3))
+    slowing = mu * B1 + s * B3
+    has_stick = slowing > 0
+    Pn_s = jnp.where(has_stick, _safe_div(jnp.abs(S0), slowing, has_stick), jnp.inf)
+    stays_stuck = mu * B1 >= jnp.abs(B3)
+    dPt1 = -s * mu
+    dPt2 = jnp.where(stays_stuck, B3 / B1, s * mu)
+    dC1 = B2 + s * mu * B3
+    dC2 = jnp.where(stays_stuck, (B1 * B2 - B3**2) / B1, B2 - s * mu * B3)
+    return _Path(Pn_s, has_stick, dPt1, dPt2, dC1, dC2, C0, stays_stuck)
+
+
+def routh_impulse(
+    B: Float[Array, "2 2"],
+    v0: Float[Array, "2"],
+    friction,
+    restitution,
+    law: str = "poisson",
+) -> ImpactResult:
+    """Impulse of a frictional 2D impact by Routh's method, exact and branch-free.
+
+    **Arguments:**
+    - `B`: inverse inertia at the contact, [[B1, -B3], [-B3, B2]] (1/kg), positive definite.
+    - `v0`: contact velocity (S0, C0) before impact, m/s; C0 < 0 approaches the ground.
+    - `friction`: Coulomb coefficient mu >= 0. `restitution`: e in [0, 1].
+    - `law`: `"poisson"` (default; Pn_f = (1 + e) Pn_c), `"newton"` (C_f = -e C0; can create energy when slip
+      stops or reverses) or `"stronge"` (restitution work = -e^2 compression work).
+
+    **Returns:** an `ImpactResult`. With C0 > 0 the contact separates: P = 0 and `Flag.SEPARATING_CONTACT` is set.
+    With C0 = 0 the impulse is zero unless the Painleve-type case B2 + s mu B3 < 0 holds, where friction drives the
+    contact into compression ("tangential impact", Wang & Mason 1992); the path formula then gives that impulse.
+    """
+    if law not in LAWS:
+        raise ValueError(f"law = {law!r}; valid laws: {', '.join(LAWS)}")
+    B = jnp.asarray(B, dtype=float)
+    v0 = jnp.asarray(v0, dtype=float)
+    mu = jnp.asarray(friction, dtype=float)
+    e = jnp.asarray(restitution, dtype=float)
+    separating = v0[1] > 0
+    # Separating contacts are computed as if C0 = 0 so every intermediate stays finite; the result is zeroed.
+    v0_used = jnp.stack([v0[0], jnp.minimum(v0[1], 0.0)])
+    path = _path(B, v0_used, mu)
+    C0 = v0_used[1]
+
+    Pn_c = path.Pn_where_C_reaches(jnp.zeros_like(C0))
+    if law == "poisson":
+        Pn_f = (1.0 + e) * Pn_c
+    elif law == "newton":
+        Pn_f = path.Pn_where_C_reaches(-e * C0)
+    else:
+        Pn_f = _stronge_end(path, Pn_c, e)
+    Pn_f = jnp.where(separating, 0.0, Pn_f)
+    Pn_c = jnp.where(separating, 0.0, Pn_c)
+    Pt_f = path.Pt(Pn_f)
+    P = jnp.stack([Pt_f, Pn_f])
+
+    stick_happens = path.has_stick & (path.Pn_s < Pn_f)
+    in_compression = path.Pn_s <= Pn_c
+    mode = jnp.where(
+        ~stick_happens,
+        ImpactMode.SLIDING,
+        jnp.where(
+            path.stays_stuck,
+            jnp.where(in_compression, ImpactMode.STICK_IN_COMPRESSION, ImpactMode.STICK_IN_RESTITUTION),
+            jnp.where(in_compression, ImpactMode.REVERSAL_IN_COMPRESSION, ImpactMode.REVERSAL_IN_RESTITUTION),
+        ),
+    ).astype(jnp.int32)
+
+    velocity = v0 + B @ P
+    energy_change = v0 @ P + 0.5 * P @ B @ P
+    Pn_mid = jnp.minimum(jnp.where(path.has_stick, path.Pn_s, Pn_f), Pn_f)
+    vertices = jnp.stack([jnp.zeros(2, dtype=P.dtype), jnp.stack([path.Pt(Pn_mid), Pn_mid]), P])
+    flags = combine(
+        flag_if(separating, Flag.SEPARATING_CONTACT),
+        flag_if(~in_range(e, 0.0, 1.0), Flag.RESTITUTION_RANGE),
+        flag_if(~in_range(mu, 0.0), Flag.FRICTION_NEGATIVE),
+    )
+    return ImpactResult(
+        P=P,
+        Pn_compression=Pn_c,
+        Pn_stick=path.Pn_s,
+        mode=mode,
+        velocity=velocity,
+        energy_change=energy_change,
+        path=vertices,
+        flags=flags,
+    )
+
+
+def _stronge_end(path: _Path, Pn_c, e):
+    """Pn where the restitution work reaches -e^2 times the compression work."""
+    W_target = -(e**2) * path.work(Pn_c)  # >= 0
+    pn_s = jnp.where(path.has_stick, path.Pn_s, jnp.inf)
+    stick_after = pn_s > Pn_c
+    # After Pn_c, C >= 0 and rises with slope c on the piece that holds Pn_c.
+    c_here = jnp.where(stick_after, path.dC1, path.dC2)
+    gap = jnp.where(stick_after & path.has_stick, path.Pn_s - Pn_c, jnp.inf)
+    W_to_stick = jnp.where(jnp.isfinite(gap), 0.5 * c_here * jnp.where(jnp.isfinite(gap), gap, 0.0) ** 2, jnp.inf)
+    within = W_target <= W_to_stick
+    c_ok = c_here > 0
+    end_within = Pn_c + _safe_sqrt(_safe_div(2.0 * W_target, c_here, c_ok))
+    # Past the stick point: C_s dp + c2 dp^2 / 2 = W_rest, in the cancellation-free root form.
+    C_s = path.C_at_stick()
+    W_rest = jnp.maximum(W_target - jnp.where(within, 0.0, W_to_stick), 0.0)
+    root = C_s + _safe_sqrt(C_s**2 + 2.0 * path.dC2 * W_rest)
+    dp = _safe_div(2.0 * W_rest, root, root > 0)
+    end_after = jnp.where(path.has_stick, path.Pn_s, 0.0) + dp
+    return jnp.where(within, end_within, end_after)

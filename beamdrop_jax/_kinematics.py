@@ -1,0 +1,147 @@
+"""Housing kinematics: which corner strikes, the contact's inverse inertia, and the velocity jumps an impact gives.
+
+Ground frame: x horizontal, y up, counter-clockwise positive. Body axes e1 = (cos theta, sin theta) along the width,
+e2 = (-sin theta, cos theta). r = G - S is the centre of mass seen from the striking corner S.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int
+
+from ._checks import GRAVITY, Flag, combine, flag_if
+from ._impact import ImpactMode, ImpactResult, routh_impulse
+from ._scene import Scene, board_ends
+
+
+def body_axes(orientation) -> Float[Array, "2 2"]:
+    """Rows e1, e2 of the housing's body axes in the ground frame."""
+    c, s = jnp.cos(orientation), jnp.sin(orientation)
+    return jnp.stack([jnp.stack([c, s]), jnp.stack([-s, c])])
+
+
+def _flat_tolerance(x):
+    return 64 * jnp.finfo(jnp.asarray(x).dtype).eps
+
+
+def lowest_corner(scene: Scene) -> tuple[Float[Array, "2"], Float[Array, "2"], Array]:
+    """The striking corner.
+
+    **Returns:** `(corner, r, flat)`: the corner's body coordinates (q1, q2) from G (m), r = G - S in the ground
+    frame (m, r[1] > 0), and whether two corners are equally low (a flat landing on a face).
+    """
+    th = scene.drop.orientation
+    W, H = scene.housing.width, scene.housing.height
+    s, c = jnp.sin(th), jnp.cos(th)
+    # The corner +-W/2 e1 +-H/2 e2 lies lowest when each sign opposes the y-component of its axis.
+    a = jnp.where(s > 0, -1.0, 1.0)
+    b = jnp.where(c > 0, -1.0, 1.0)
+    corner = jnp.stack([a * W / 2, b * H / 2])
+    axes = body_axes(th)
+    r = -(corner @ axes)
+    tol = _flat_tolerance(th)
+    flat = (jnp.abs(s) < tol) | (jnp.abs(c) < tol)
+    return corner, r, flat
+
+
+def contact_matrix(r: Float[Array, "2"], mass, inertia) -> Float[Array, "2 2"]:
+    """Inverse inertia at the contact, B = [[B1, -B3], [-B3, B2]] with B1 = 1/m + y^2/I, B2 = 1/m + x^2/I,
+    B3 = x y / I, for r = G - S = (x, y)."""
+    x, y = r[0], r[1]
+    B1 = 1.0 / mass + y**2 / inertia
+    B2 = 1.0 / mass + x**2 / inertia
+    B3 = x * y / inertia
+    return jnp.stack([jnp.stack([B1, -B3]), jnp.stack([-B3, B2])])
+
+
+def approach_velocity(scene: Scene, r: Float[Array, "2"]) -> Float[Array, "2"]:
+    """Contact-point velocity (S0, C0) before impact: S0 = u + w0 y, C0 = -sqrt(2 g h) - w0 x (m/s)."""
+    d = scene.drop
+    v_drop = jnp.sqrt(2.0 * GRAVITY * jnp.maximum(d.height, 0.0))
+    return jnp.stack([d.horizontal_speed + d.spin * r[1], -v_drop - d.spin * r[0]])
+
+
+class HousingImpact(eqx.Module):
+    """The housing's impact: the law's result plus what it does to the rigid body.
+
+    - `impact`: the `ImpactResult` (impulse P in the ground frame's (t, n) = (x, y) directions).
+    - `corner`: striking corner's body coordinates from G, m. `r`: G - S in the ground frame, m.
+    - `B`, `v0`: contact inverse inertia and approach velocity (S0, C0).
+    - `dv_G`: jump of the centre-of-mass velocity, m/s. `dw`: jump of the spin, rad/s.
+    - `flat`: whether the housing landed flat on a face (then the exact translation answer is used).
+    - `flags`: `Flag` mask.
+    """
+
+    impact: ImpactResult
+    corner: Float[Array, "2"]
+    r: Float[Array, "2"]
+    B: Float[Array, "2 2"]
+    v0: Float[Array, "2"]
+    dv_G: Float[Array, "2"]
+    dw: Float[Array, ""]
+    flat: Array
+    flags: Int[Array, ""]
+
+    def point_velocity_jump(self, orientation, q: Float[Array, "... 2"]) -> Float[Array, "... 2"]:
+        """Velocity jump (ground frame, m/s) of housing points at body coordinates q = (q1, q2) from G."""
+        r_q = jnp.asarray(q) @ body_axes(orientation)
+        z_cross = jnp.stack([-r_q[..., 1], r_q[..., 0]], axis=-1)
+        return self.dv_G + self.dw * z_cross
+
+
+def housing_impact(scene: Scene, law: str = "poisson") -> HousingImpact:
+    """Corner impact of the housing: lowest corner, Routh impulse, jumps of v_G and spin.
+
+    A flat landing (two corners equally low) with no spin and no horizontal speed has the exact answer that the
+    housing translates: every point gains (1 + e) times the approach speed upwards and friction plays no part
+    (`impact.P` then holds the total impulse of both corners). A flat landing with spin or drift is outside the
+    single-contact law: `Flag.FLAT_LANDING_WITH_MOTION`. A separating contact (C0 >= 0, e.g. a zero drop height)
+    gets `Flag.SEPARATING_CONTACT`.
+    """
+    h = scene.housing
+    corner, r, flat = lowest_corner(scene)
+    B = contact_matrix(r, h.mass, h.inertia)
+    v0 = approach_velocity(scene, r)
+    imp = routh_impulse(B, v0, scene.contact.friction, scene.contact.restitution, law=law)
+    dv_G = imp.P / h.mass
+    dw = (r[1] * imp.P[0] - r[0] * imp.P[1]) / h.inertia
+
+    e = scene.contact.restitution
+    flat_P = jnp.stack([jnp.zeros_like(v0[1]), -(1.0 + e) * h.mass * v0[1]])
+    flat_impact = ImpactResult(
+        P=flat_P,
+        Pn_compression=-h.mass * v0[1],
+        Pn_stick=jnp.zeros_like(v0[1]),
+        mode=jnp.int32(ImpactMode.STICK_IN_COMPRESSION),
+        velocity=jnp.stack([jnp.zeros_like(v0[1]), -e * v0[1]]),
+        energy_change=0.5 * h.mass * (e**2 - 1.0) * v0[1] ** 2,
+        path=jnp.stack([jnp.zeros(2, dtype=flat_P.dtype), flat_P / 2, flat_P]),
+        flags=imp.flags,
+    )
+    moving = (scene.drop.spin != 0) | (scene.drop.horizontal_speed != 0)
+    impact = jnp_tree_where(flat, flat_impact, imp)
+    dv_G = jnp.where(flat, flat_P / h.mass, dv_G)
+    dw = jnp.where(flat, 0.0, dw)
+    separating = ~(v0[1] < 0)
+    flags = combine(
+        impact.flags,
+        flag_if(flat & moving, Flag.FLAT_LANDING_WITH_MOTION),
+        flag_if(separating, Flag.SEPARATING_CONTACT),
+    )
+    return HousingImpact(impact, corner, r, B, v0, dv_G, dw, flat, flags)
+
+
+def jnp_tree_where(cond, a, b):
+    """Elementwise `jnp.where(cond, a, b)` over two pytrees of the same structure."""
+    return jax.tree_util.tree_map(lambda x, y: jnp.where(cond, x, y), a, b)
+
+
+def support_jumps(scene: Scene, hit: HousingImpact) -> Float[Array, "2"]:
+    """Normal velocity jumps (dvA, dvB) of the board's ends, m/s, positive along the board normal n = z x t."""
+    ends = board_ends(scene.placement, scene.board.length)
+    dv = hit.point_velocity_jump(scene.drop.orientation, ends)
+    axes = body_axes(scene.drop.orientation)
+    phi = scene.placement.angle
+    t = jnp.cos(phi) * axes[0] + jnp.sin(phi) * axes[1]
+    n = jnp.stack([-t[1], t[0]])
+    return dv @ n
