@@ -26,4 +26,6 @@ from ._kinematics import (
     support_jumps as support_jumps,
 )
 
+
+from ._plots import plot_impact as plot_impact
 __version__ = "0.1.0"

@@ -134,7 +134,9 @@ def _path(B, v0, mu) -> _Path:
     # stick point is at Pn = 0 below and the direction never matters).
     s = jnp.where(S0 > 0, 1.0, jnp.where(S0 < 0, -1.0, -sign_B3))
     slowing = mu * B1 + s * B3
-    has_stick = slowing > 0
+    # Slowing within a few ulps of zero puts the stick point beyond any termination (and 1/slowing^2 in its
+    # gradient past overflow); at that boundary sliding and sticking follow the same line anyway.
+    has_stick = slowing > 16 * jnp.finfo(slowing.dtype).eps * (mu * B1 + jnp.abs(B3))
     Pn_s = jnp.where(has_stick, _safe_div(jnp.abs(S0), slowing, has_stick), jnp.inf)
     stays_stuck = mu * B1 >= jnp.abs(B3)
     dPt1 = -s * mu
@@ -163,6 +165,10 @@ def routh_impulse(
     **Returns:** an `ImpactResult`. With C0 > 0 the contact separates: P = 0 and `Flag.SEPARATING_CONTACT` is set.
     With C0 = 0 the impulse is zero unless the Painleve-type case B2 + s mu B3 < 0 holds, where friction drives the
     contact into compression ("tangential impact", Wang & Mason 1992); the path formula then gives that impulse.
+
+    Poisson and Stronge never create kinetic energy in a single 2D contact; Newton can. Example: B1 = B2 = 2.5,
+    B3 = 1.5, (S0, C0) = (0.5, -1), mu = 0.8, e = 1: slip stops at Pn = 1/7, the contact sticks, and Newton ends at
+    P = (0.4375, 1.0625) with an energy *gain* of 7/64 J, where Poisson ends at P = (0.325, 0.875) and loses 0.05 J.
     """
     if law not in LAWS:
         raise ValueError(f"law = {law!r}; valid laws: {', '.join(LAWS)}")

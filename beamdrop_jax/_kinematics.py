@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from ._checks import GRAVITY, Flag, combine, flag_if
+from ._checks import GRAVITY, Flag, combine, flag_if, is_concrete
 from ._impact import ImpactMode, ImpactResult, routh_impulse
 from ._scene import Scene, board_ends
 
@@ -128,7 +128,27 @@ def housing_impact(scene: Scene, law: str = "poisson") -> HousingImpact:
         flag_if(flat & moving, Flag.FLAT_LANDING_WITH_MOTION),
         flag_if(separating, Flag.SEPARATING_CONTACT),
     )
+    _raise_outside_law(scene, flat & moving, separating, v0)
     return HousingImpact(impact, corner, r, B, v0, dv_G, dw, flat, flags)
+
+
+def _raise_outside_law(scene, flat_moving, separating, v0):
+    if not is_concrete(flat_moving, separating, v0):
+        return
+    d = scene.drop
+    if bool(flat_moving):
+        raise ValueError(
+            f"Drop.orientation = {float(d.orientation):.6g} rad lands flat on a face (a multiple of pi/2) with "
+            f"Drop.spin = {float(d.spin):g} rad/s and Drop.horizontal_speed = {float(d.horizontal_speed):g} m/s: two "
+            "simultaneous contacts are outside the single-contact law. Use spin = 0 and horizontal_speed = 0 for a "
+            "flat landing (exact translation answer), or an orientation away from multiples of pi/2."
+        )
+    if bool(separating):
+        raise ValueError(
+            f"the striking corner's normal velocity C0 = {float(v0[1]):g} m/s is not approaching the ground "
+            f"(C0 must be < 0): Drop.height = {float(d.height):g} m, Drop.spin = {float(d.spin):g} rad/s. "
+            "Use Drop.height > 0 or a spin that does not lift the corner."
+        )
 
 
 def jnp_tree_where(cond, a, b):

@@ -1,0 +1,51 @@
+"""Every figure the package draws. Functions take results, draw on an optional `ax`, and return the figure."""
+
+import numpy as np
+
+from ._impact import ImpactMode, routh_impulse
+
+
+def _axes(ax, figsize=(6.0, 4.5)):
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        fig, ax = plt.subplots(figsize=figsize, layout="constrained")
+    return ax.figure, ax
+
+
+def plot_impact(B, v0, friction, restitution, law: str = "poisson", *, ax=None, title: str | None = None):
+    """Impact process diagram in the impulse plane (Pt horizontal, Pn vertical), as the thesis's figures 3.5 and 4.2.
+
+    Draws the friction cone's edges, the stick line (S = 0), the line of maximum compression (C = 0), the
+    termination level, and the impulse path with its vertices marked; the title names the contact mode.
+    """
+    res = routh_impulse(B, v0, friction, restitution, law=law)
+    B = np.asarray(B, float)
+    S0, C0 = np.asarray(v0, float)
+    B1, B2, B3 = B[0, 0], B[1, 1], -B[0, 1]
+    mu = float(friction)
+    path = np.asarray(res.path)
+    fig, ax = _axes(ax)
+    top = 1.25 * max(float(path[:, 1].max()), 1e-12)
+    pn = np.linspace(0.0, top, 2)
+    span = max(np.abs(path[:, 0]).max(), mu * top, 1e-12) * 1.3
+    ax.fill_betweenx(pn, -mu * pn, mu * pn, color="0.93", label="friction cone")
+    ax.plot(mu * pn, pn, color="0.5", lw=1)
+    ax.plot(-mu * pn, pn, color="0.5", lw=1)
+    # S = S0 + B1 Pt - B3 Pn = 0 and C = C0 - B3 Pt + B2 Pn = 0.
+    ax.plot((B3 * pn - S0) / B1, pn, "--", color="tab:green", label="stick line S = 0")
+    pt = np.linspace(-span, span, 2)
+    ax.plot(pt, (B3 * pt - C0) / B2, "--", color="tab:blue", label="max compression C = 0")
+    ax.axhline(float(res.P[1]), color="tab:red", lw=0.8, ls=":", label=f"termination ({law})")
+    ax.plot(path[:, 0], path[:, 1], "-o", color="k", ms=4, lw=2, label="impulse path")
+    ax.plot([float(res.P[0])], [float(res.P[1])], "*", color="tab:red", ms=12)
+    pn_c = float(res.Pn_compression)
+    ax.plot([np.interp(pn_c, path[:, 1], path[:, 0])], [pn_c], "D", color="tab:blue", ms=6, label="max compression")
+    ax.set_xlim(-span, span)
+    ax.set_ylim(0.0, top)
+    ax.set_xlabel("tangential impulse $P_t$ (N s)")
+    ax.set_ylabel("normal impulse $P_n$ (N s)")
+    mode = ImpactMode(int(res.mode)).label
+    ax.set_title(title or f"Impact process: {mode}; P = ({float(res.P[0]):.4g}, {float(res.P[1]):.4g}) N s")
+    ax.legend(loc="lower left", fontsize=8)
+    return fig

@@ -1,0 +1,101 @@
+"""The `beamdrop` command: parse, load a scene, call the library, print a table, save figures."""
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def _setup_jax(args):
+    import jax
+
+    # The CLI (not the library) picks the precision: float64 unless asked otherwise.
+    jax.config.update("jax_enable_x64", not getattr(args, "float32", False))
+
+
+def _scene(args):
+    import beamdrop_jax as bd
+
+    return bd.load_scene(args.scene) if args.scene else bd.Scene.default()
+
+
+def _out(args) -> Path:
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _save(fig, path: Path):
+    fig.savefig(path, dpi=120)
+    print(f"wrote {path}")
+
+
+def _table(rows):
+    width = max(len(k) for k, _ in rows)
+    for k, v in rows:
+        print(f"  {k:<{width}}  {v}")
+
+
+def cmd_impact(args):
+    import beamdrop_jax as bd
+
+    scene = _scene(args)
+    hit = bd.housing_impact(scene, law=args.law)
+    imp = hit.impact
+    print(f"Impact of {'scene ' + args.scene if args.scene else 'the default scene'} ({args.law} restitution)")
+    _table(
+        [
+            ("striking corner (q1, q2) from G", f"({float(hit.corner[0]) * 1e3:.1f}, {float(hit.corner[1]) * 1e3:.1f}) mm"),
+            ("approach velocity (S0, C0)", f"({float(hit.v0[0]):.4f}, {float(hit.v0[1]):.4f}) m/s"),
+            ("impulse (Pt, Pn)", f"({float(imp.P[0]):.5f}, {float(imp.P[1]):.5f}) N s"),
+            ("contact mode", "flat landing (translation)" if bool(hit.flat) else bd.ImpactMode(int(imp.mode)).label),
+            ("centre-of-mass velocity jump", f"({float(hit.dv_G[0]):.4f}, {float(hit.dv_G[1]):.4f}) m/s"),
+            ("spin jump", f"{float(hit.dw):.4f} rad/s"),
+            ("contact velocity after (S, C)", f"({float(imp.velocity[0]):.4f}, {float(imp.velocity[1]):.4f}) m/s"),
+            ("kinetic energy lost", f"{-float(imp.energy_change):.5f} J"),
+            ("board support jumps (dvA, dvB)", "({:.4f}, {:.4f}) m/s".format(*map(float, bd.support_jumps(scene, hit)))),
+        ]
+    )
+    if not args.no_plots:
+        out = _out(args)
+        fig = bd.plot_impact(hit.B, hit.v0, scene.contact.friction, scene.contact.restitution, law=args.law)
+        _save(fig, out / "impact.png")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="beamdrop", description="Differentiable drop simulation of a board inside a device (SI units)."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def common(p):
+        p.add_argument("--scene", help="scene TOML file or embedded scene name (default: the embedded default scene)")
+        p.add_argument("--out", default="beamdrop-out", help="folder for figures and tables (default: beamdrop-out)")
+        p.add_argument("--float32", action="store_true", help="compute in float32 (default float64)")
+        p.add_argument("--no-plots", action="store_true", help="print only, write no figures")
+
+    p = sub.add_parser(
+        "impact",
+        help="Routh impact of the housing: impulse (N s), mode, velocity jumps (m/s), energy lost (J), diagram",
+    )
+    common(p)
+    p.add_argument("--law", default="poisson", choices=["poisson", "newton", "stronge"], help="restitution law")
+    p.set_defaults(func=cmd_impact)
+    return parser
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    _setup_jax(args)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    try:
+        args.func(args)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"beamdrop: error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

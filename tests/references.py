@@ -1,0 +1,112 @@
+"""Independent reference implementations the tests compare the package against.
+
+Nothing here imports beamdrop_jax: each function is its own code path, written from the physics.
+"""
+
+import math
+
+import numpy as np
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Darboux-Keller: integrate the contact velocity in the normal impulse, event by event.
+
+
+def darboux_keller(B, v0, mu, e, law="poisson"):
+    """Frictional impact by event-driven integration of dS/dPn, dC/dPn and the normal work in Pn.
+
+    The state is (Pt, Pn, S, C, W) with W = integral of C dPn. In each phase the regime (slide in direction s, or
+    stick) is decided from the current state by the Coulomb rule, the state's derivative with respect to Pn is then
+    constant, and the phase ends at the nearest event: slip stops (S = 0), maximum compression (C = 0), or the
+    law's termination. Returns (Pt, Pn, mode_name).
+    """
+    B = np.asarray(B, float)
+    B1, B2, B3 = B[0, 0], B[1, 1], -B[0, 1]
+    Pt, Pn, S, C, W = 0.0, 0.0, float(v0[0]), float(v0[1]), 0.0
+    Pn_c = None
+    W_c = None
+    events = []
+    if S == 0.0 and mu * B1 > abs(B3):
+        events.append(("stick", True))
+    for _ in range(10):
+        # Regime from the current state.
+        if S != 0.0:
+            regime, s = "slide", math.copysign(1.0, S)
+        elif mu * B1 >= abs(B3):
+            regime, s = "stick", 0.0
+        else:
+            regime, s = "slide", -math.copysign(1.0, B3) if B3 != 0 else 1.0
+        if regime == "stick":
+            dPt = B3 / B1
+        else:
+            dPt = -s * mu
+        # (S, C) = (S0, C0) + B (Pt, Pn): the derivatives follow from B and dPt.
+        dS = 0.0 if regime == "stick" else B1 * dPt - B3
+        dC = -B3 * dPt + B2
+        candidates = []
+        if regime == "slide" and s * dS < 0 and S != 0.0:
+            candidates.append(("stick", -S / dS))
+        if Pn_c is None and dC > 0:
+            candidates.append(("compression", -C / dC))
+        if Pn_c is not None:
+            if law == "poisson":
+                target = (1.0 + e) * Pn_c - Pn
+                candidates.append(("end", max(target, 0.0)))
+            elif law == "newton":
+                if dC > 0:
+                    candidates.append(("end", max((-e * v0[1] - C) / dC, 0.0)))
+            elif law == "stronge":
+                need = -(e**2) * W_c - (W - W_c)
+                # C dp + dC dp^2 / 2 = need, C >= 0 and dC > 0 in restitution.
+                if need <= 0:
+                    candidates.append(("end", 0.0))
+                else:
+                    dp = (-C + math.sqrt(C * C + 2.0 * dC * need)) / dC
+                    candidates.append(("end", dp))
+        name, dp = min(candidates, key=lambda c: c[1])
+        Pt += dPt * dp
+        Pn += dp
+        W += C * dp + 0.5 * dC * dp * dp
+        S += dS * dp
+        C += dC * dp
+        if name == "stick":
+            S = 0.0
+            events.append(("stick" if mu * B1 >= abs(B3) else "reversal", Pn_c is None))
+        elif name == "compression":
+            C = 0.0
+            Pn_c = Pn
+            W_c = W
+            if e == 0.0:
+                break
+        else:
+            break
+    if not events:
+        mode = "SLIDING"
+    else:
+        kind, before_compression = events[0]
+        mode = f"{kind.upper()}_IN_{'COMPRESSION' if before_compression else 'RESTITUTION'}"
+    return Pt, Pn, mode
+
+
+def random_contact(rng):
+    """A random physical contact: B from a random body, (S0, C0), mu, e, with S0 = 0 one time in eight."""
+    m = rng.uniform(0.1, 3.0)
+    k = rng.uniform(0.05, 1.0)
+    x = rng.uniform(-1.0, 1.0)
+    y = rng.uniform(0.01, 1.0)
+    inertia = m * k * k
+    B = np.array([[1 / m + y * y / inertia, -x * y / inertia], [-x * y / inertia, 1 / m + x * x / inertia]])
+    S0 = 0.0 if rng.random() < 0.125 else rng.uniform(-3.0, 3.0)
+    C0 = -rng.uniform(0.1, 3.0)
+    mu = rng.uniform(0.0, 2.0)
+    e = rng.uniform(0.0, 1.0)
+    return B, np.array([S0, C0]), mu, e
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Rigid-body free flight (for clattering and kinematics checks).
+
+
+def point_velocity(v_G, w, r):
+    """Velocity of a rigid-body point at offset r from G: v_G + w z x r."""
+    return np.asarray(v_G) + w * np.array([-r[1], r[0]])
