@@ -27,5 +27,20 @@ from ._kinematics import (
 )
 
 
+from ._motion import HalfSine as HalfSine, Impulse as Impulse, Record as Record
+from ._motion import JESD22_B111_CONDITION_B as JESD22_B111_CONDITION_B
+from ._board import natural_frequencies as natural_frequencies, unit_response as unit_response
+from ._peaks import FieldPeak as FieldPeak
+from ._simulate import (
+    Fields as Fields,
+    Numerics as Numerics,
+    Peak as Peak,
+    Response as Response,
+    board_response as board_response,
+    peak_stress as peak_stress,
+    response_fields as response_fields,
+    simulate as simulate,
+    support_motion as support_motion,
+)
 from ._plots import plot_impact as plot_impact
 __version__ = "0.1.0"

@@ -1,0 +1,106 @@
+"""Modal model of the pinned-pinned board and its closed-form response to support motion.
+
+Relative deflection u(x, t) from the chord AB (x from A) obeys
+rho A u_tt + EI u_xxxx - N u_xx = -rho A [a_A(t) (1 - x/L) + a_B(t) x/L] (+ modal damping).
+With u = sum q_k(t) sin(k pi x / L):
+q_k'' + 2 zeta omega_k q_k' + omega_k^2 q_k = -(2 / (k pi)) [a_A(t) - (-1)^k a_B(t)],
+omega_k^2 = (EI (k pi/L)^4 + N (k pi/L)^2) / (rho A).
+Rotation-induced loads on the board (centrifugal, Euler) are neglected.
+"""
+
+import math
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._scene import Board
+
+
+def mode_numbers(n_modes: int) -> Float[Array, " n"]:
+    return jnp.arange(1, n_modes + 1, dtype=float)
+
+
+def wavenumbers(board: Board, n_modes: int) -> Float[Array, " n"]:
+    """k pi / L for k = 1..n, 1/m."""
+    return mode_numbers(n_modes) * math.pi / board.length
+
+
+def natural_frequencies(board: Board, n_modes: int) -> Float[Array, " n"]:
+    """Undamped natural frequencies omega_k (rad/s), k = 1..n, including the axial force.
+
+    A buckled board (axial force at or past -EI pi^2/L^2) has no real frequency; it is flagged by
+    `Board.flags()` and the frequencies are clamped to a tiny positive value so nothing downstream is NaN.
+    """
+    kappa = wavenumbers(board, n_modes)
+    omega2 = (board.bending_stiffness * kappa**4 + board.axial_force * kappa**2) / board.mass_per_length
+    tiny = jnp.finfo(omega2.dtype).tiny ** 0.25
+    return jnp.sqrt(jnp.maximum(omega2, tiny))
+
+
+def support_participation(n_modes: int) -> Float[Array, "n 2"]:
+    """Modal forcing per unit support acceleration: F_k = p_kA a_A + p_kB a_B with p_kA = -2/(k pi),
+    p_kB = 2 (-1)^k / (k pi)."""
+    k = mode_numbers(n_modes)
+    return jnp.stack([-2.0 / (k * math.pi), 2.0 * (-1.0) ** k / (k * math.pi)], axis=-1)
+
+
+def modal_velocity_jumps(jumps: Float[Array, "2"], n_modes: int) -> Float[Array, " n"]:
+    """beta_k = -(2/(k pi)) [dvA - (-1)^k dvB]: the modal velocities an ideal impulse leaves, m/s."""
+    return support_participation(n_modes) @ jnp.asarray(jumps)
+
+
+_SERIES_RADIUS = 0.1
+
+
+def _phi(w):
+    """(e^w - 1)/w for small complex w by its Taylor series (error < 1e-13 relative for |w| < 0.1)."""
+    out = jnp.ones_like(w)
+    for n in range(8, 0, -1):
+        out = 1.0 + w * out / (n + 1)
+    return out
+
+
+def unit_response(t, omega, zeta, duration):
+    """Modal displacement at time t (s) for a unit modal velocity change delivered as a half-sine of `duration`
+    (s) starting at t = 0, or as an ideal impulse when `duration` = 0. Shapes broadcast over modes.
+
+    Impulse: e^{-zeta w t} sin(w_d t) / w_d. Half-sine: its convolution with pi/(2 tau) sin(pi s / tau) on
+    [0, tau], evaluated in complex exponentials with no division by (w^2 - (pi/tau)^2), so exact resonance
+    (w = pi/tau) and tau -> 0 are regular. Zero for t < 0.
+    """
+    t = jnp.asarray(t, dtype=float)
+    omega = jnp.asarray(omega)
+    zeta = jnp.asarray(zeta)
+    tau = jnp.asarray(duration)
+    t_pos = jnp.maximum(t, 0.0)
+    omega_d = omega * jnp.sqrt(1.0 - zeta**2)
+    decay = zeta * omega
+    impulse = jnp.exp(-decay * t_pos) * jnp.sin(omega_d * t_pos) / omega_d
+
+    is_pulse = tau > 0
+    tau_s = jnp.where(is_pulse, tau, 1.0)
+    Omega = math.pi / tau_s
+    T = jnp.minimum(t_pos, tau_s)
+    lam = -decay + 1j * omega_d
+    e_lam_t = jnp.exp(lam * t_pos)
+    e_rest = jnp.exp(lam * (t_pos - T))  # |.| <= 1: no overflow for heavy damping
+
+    def piece(sign):
+        # Integral over [0, T] of e^{lam (t - s)} e^{i sign Omega s} ds.
+        z = 1j * sign * Omega - lam
+        zT = z * T
+        small = jnp.abs(zT) < _SERIES_RADIUS
+        z_safe = jnp.where(small, 1.0 + 0j, z)
+        direct = (e_rest * jnp.exp(1j * sign * Omega * T) - e_lam_t) / z_safe
+        series = e_lam_t * T * _phi(jnp.where(small, zT, 0j))
+        return jnp.where(small, series, direct)
+
+    integral = (piece(1.0) - piece(-1.0)) / 2j
+    pulse = math.pi / (2.0 * tau_s) * jnp.imag(integral) / omega_d
+    out = jnp.where(is_pulse, pulse, impulse)
+    return jnp.where(t >= 0, out, 0.0)
+
+
+def fundamental_period(board: Board):
+    """2 pi / omega_1, s."""
+    return 2.0 * math.pi / natural_frequencies(board, 1)[0]

@@ -1,0 +1,146 @@
+"""What the board's supports do: an ideal velocity jump, a half-sine pulse, or a measured acceleration record.
+
+Each support's normal acceleration is a(t) = dv g(t) with the integral of g equal to 1 (for `Impulse` and
+`HalfSine`), or a sampled record (`Record`). Velocities in m/s, accelerations in m/s^2, times in s.
+"""
+
+import math
+from pathlib import Path
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._checks import GRAVITY, is_concrete, require
+
+
+def _f(x):
+    return jnp.asarray(x, dtype=float)
+
+
+class Impulse(eqx.Module):
+    """Ideal impulse: the supports' normal velocities jump by `dvA`, `dvB` at t = 0 (the thesis's model)."""
+
+    dvA: Float[Array, ""]
+    dvB: Float[Array, ""]
+
+    def __init__(self, dvA, dvB):
+        self.dvA = _f(dvA)
+        self.dvB = _f(dvB)
+
+    def __check_init__(self):
+        require(self.dvA, "Impulse.dvA", unit="m/s")
+        require(self.dvB, "Impulse.dvB", unit="m/s")
+
+    def as_half_sine(self) -> "HalfSine":
+        return HalfSine(self.dvA, self.dvB, 0.0)
+
+
+class HalfSine(eqx.Module):
+    """Half-sine pulse of `duration` tau at both supports: a(t) = dv pi/(2 tau) sin(pi t / tau) on [0, tau].
+
+    The velocity change of each support is `dvA`, `dvB`; `duration = 0` is the ideal impulse.
+    """
+
+    dvA: Float[Array, ""]
+    dvB: Float[Array, ""]
+    duration: Float[Array, ""]
+
+    def __init__(self, dvA, dvB, duration):
+        self.dvA = _f(dvA)
+        self.dvB = _f(dvB)
+        self.duration = _f(duration)
+
+    def __check_init__(self):
+        require(self.dvA, "HalfSine.dvA", unit="m/s")
+        require(self.dvB, "HalfSine.dvB", unit="m/s")
+        require(self.duration, "HalfSine.duration", 0.0, unit="s")
+
+    @classmethod
+    def from_peak(cls, peak_acceleration, duration) -> "HalfSine":
+        """The same pulse at both supports from its peak acceleration (m/s^2), e.g. JESD22-B111 condition B:
+        `HalfSine.from_peak(1500 * bd.GRAVITY, 0.5e-3)`. The velocity change is peak * 2 tau / pi."""
+        require(duration, "HalfSine.duration", 0.0, lo_open=True, unit="s")
+        require(peak_acceleration, "HalfSine peak_acceleration", unit="m/s^2")
+        dv = _f(peak_acceleration) * 2.0 * _f(duration) / math.pi
+        return cls(dv, dv, duration)
+
+    def as_half_sine(self) -> "HalfSine":
+        return self
+
+    def acceleration(self, t) -> Float[Array, "2"]:
+        """(aA, aB) at time t, m/s^2."""
+        tau = self.duration
+        on = (t >= 0) & (t <= tau) & (tau > 0)
+        tau_safe = jnp.where(tau > 0, tau, 1.0)
+        g = jnp.where(on, math.pi / (2 * tau_safe) * jnp.sin(math.pi * t / tau_safe), 0.0)
+        return jnp.stack([self.dvA * g, self.dvB * g])
+
+    @property
+    def end_time(self):
+        return self.duration
+
+
+JESD22_B111_CONDITION_B = (1500.0 * GRAVITY, 0.5e-3)
+"""(peak acceleration m/s^2, duration s) of JESD22-B111 service condition B."""
+
+
+class Record(eqx.Module):
+    """A measured support-acceleration record: samples `t` (s, increasing), `aA`, `aB` (m/s^2), linearly
+    interpolated and zero outside [t[0], t[-1]]. Needs the diffrax path (`Numerics(method="diffrax")`)."""
+
+    t: Float[Array, " n"]
+    aA: Float[Array, " n"]
+    aB: Float[Array, " n"]
+
+    def __init__(self, t, aA, aB):
+        self.t = _f(t)
+        self.aA = _f(aA)
+        self.aB = _f(aB)
+
+    def __check_init__(self):
+        if is_concrete(self.t, self.aA, self.aB):
+            n = np.shape(self.t)
+            if len(n) != 1 or n[0] < 2:
+                raise ValueError(f"Record.t needs at least 2 samples in a 1-D array, got shape {n}")
+            if np.shape(self.aA) != n or np.shape(self.aB) != n:
+                raise ValueError(
+                    f"Record.aA and Record.aB must have the shape of Record.t {n}, got "
+                    f"{np.shape(self.aA)} and {np.shape(self.aB)}"
+                )
+            require(self.t, "Record.t", 0.0, unit="s")
+            require(self.aA, "Record.aA", unit="m/s^2")
+            require(self.aB, "Record.aB", unit="m/s^2")
+            if not np.all(np.diff(np.asarray(self.t)) > 0):
+                raise ValueError("Record.t must be strictly increasing")
+
+    @classmethod
+    def from_csv(cls, path, *, time_unit: float = 1.0, acceleration_unit: float = 1.0) -> "Record":
+        """Load a CSV with columns t, aA, aB (a header line is skipped). Scale with `time_unit` (e.g. 1e-3 for ms)
+        and `acceleration_unit` (e.g. `bd.GRAVITY` for g)."""
+        text = Path(path).read_text().strip().splitlines()
+        rows = [line for line in text if line.strip() and not line.lstrip().startswith("#")]
+        try:
+            float(rows[0].split(",")[0])
+        except ValueError:
+            rows = rows[1:]
+        data = np.array([[float(v) for v in line.split(",")[:3]] for line in rows]) if rows else np.zeros((0, 3))
+        if data.ndim != 2 or data.shape[1] != 3:
+            raise ValueError(f"{path}: expected three comma-separated columns t, aA, aB")
+        return cls(data[:, 0] * time_unit, data[:, 1] * acceleration_unit, data[:, 2] * acceleration_unit)
+
+    def acceleration(self, t) -> Float[Array, "2"]:
+        inside = (t >= self.t[0]) & (t <= self.t[-1])
+        aA = jnp.interp(t, self.t, self.aA)
+        aB = jnp.interp(t, self.t, self.aB)
+        return jnp.where(inside, jnp.stack([aA, aB]), 0.0)
+
+    @property
+    def end_time(self):
+        return self.t[-1]
+
+    @property
+    def velocity_jumps(self) -> Float[Array, "2"]:
+        """Integral of each support's acceleration (trapezoids), m/s."""
+        return jnp.stack([jnp.trapezoid(self.aA, self.t), jnp.trapezoid(self.aB, self.t)])

@@ -1,0 +1,122 @@
+"""Peak of |sum_k c_k q_k(t) sin(k pi x / L)| over x in [0, L] and t in [0, window].
+
+A coarse grid finds candidate peaks (the largest local maxima in time of the spatial envelope); Newton's method on
+the modal series refines each within a grid cell; the largest wins. The peak's gradient is the gradient at the
+maximiser (envelope theorem), so the maximiser enters under `stop_gradient`, except at the window's end, where the
+window's own dependence on the parameters counts.
+"""
+
+import math
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+
+class FieldPeak(eqx.Module):
+    """Peak of |field|: `value`, where (`x` from end A, m) and when (`t`, s), and `error`: relative estimate of
+    the peak's remaining error from the search (last Newton gain, or grid-halving difference without refinement)."""
+
+    value: Float[Array, ""]
+    x: Float[Array, ""]
+    t: Float[Array, ""]
+    error: Float[Array, ""]
+
+
+def stop_gradient(tree):
+    """`jax.lax.stop_gradient` on every inexact array of a pytree (other leaves pass through)."""
+    return jax.tree_util.tree_map(lambda v: jax.lax.stop_gradient(v) if eqx.is_inexact_array(v) else v, tree)
+
+
+def mode_shapes(x, length, n_modes: int) -> Float[Array, "... n"]:
+    k = jnp.arange(1, n_modes + 1, dtype=float)
+    return jnp.sin(jnp.asarray(x)[..., None] * k * math.pi / length)
+
+
+def field_on_grid(coeffs, Q, x, length) -> Float[Array, "nx nt"]:
+    """Field sum_k coeffs_k Q[t, k] sin(k pi x / L) on the grid x (nx,) by Q (nt, n)."""
+    return (mode_shapes(x, length, Q.shape[-1]) * coeffs) @ Q.T
+
+
+def find_peak(
+    coeffs: Float[Array, " n"],
+    modal: Callable,
+    Q: Float[Array, "nt n"],
+    x: Float[Array, " nx"],
+    t: Float[Array, " nt"],
+    length,
+    window,
+    *,
+    candidates: int = 4,
+    newton_steps: int = 6,
+    refine: bool = True,
+) -> FieldPeak:
+    """Peak of |field| with `modal(t) -> q (n,)` the modal coordinates (a pytree callable, e.g. an `eqx.Module`)
+    and `Q = vmap(modal)(t)` on the grid."""
+    F = field_on_grid(coeffs, Q, x, length)
+    A = jnp.abs(F)
+    envelope = A.max(axis=0)
+    where_x = A.argmax(axis=0)
+    if not refine:
+        j = envelope.argmax()
+        coarse = jnp.max(envelope[::2])
+        err = (envelope[j] - coarse) / jnp.maximum(envelope[j], jnp.finfo(A.dtype).tiny)
+        return FieldPeak(envelope[j], x[where_x[j]], t[j], err)
+
+    # Candidates: the largest local maxima in time of the spatial envelope (a lone spike at an end counts).
+    left = jnp.concatenate([jnp.full((1,), -jnp.inf, A.dtype), envelope[:-1]])
+    right = jnp.concatenate([envelope[1:], jnp.full((1,), -jnp.inf, A.dtype)])
+    is_local = (envelope >= left) & (envelope >= right)
+    k_cand = min(candidates, envelope.shape[0])
+    _, idx = jax.lax.top_k(jnp.where(is_local, envelope, -jnp.inf), k_cand)
+    x0 = x[where_x[idx]]
+    t0 = t[idx]
+    sign0 = jnp.sign(F[where_x[idx], idx])
+    cell = jnp.stack([x[1] - x[0], t[1] - t[0]])
+    lo = jnp.stack([jnp.zeros_like(length), jnp.zeros_like(window)])
+    hi = jnp.stack([length, window])
+
+    # The search itself is not differentiated: only the final evaluation at the maximiser is.
+    coeffs_c, length_c, modal_c = stop_gradient((coeffs, length, modal))
+
+    def signed_field(p, sign):
+        q = modal_c(p[1])
+        return sign * jnp.sum(coeffs_c * q * mode_shapes(p[0], length_c, q.shape[-1]))
+
+    def refine_one(x0, t0, sign):
+        f = lambda p: signed_field(p, sign)
+        grad = jax.grad(f)
+        hess = jax.jacfwd(grad)
+
+        def step(carry, _):
+            p, fp, gain = carry
+            g = grad(p)
+            H = hess(p)
+            det = H[0, 0] * H[1, 1] - H[0, 1] ** 2
+            concave = (H[0, 0] < 0) & (det > 0)
+            det_safe = jnp.where(concave, det, 1.0)
+            newton = -jnp.stack([H[1, 1] * g[0] - H[0, 1] * g[1], H[0, 0] * g[1] - H[0, 1] * g[0]]) / det_safe
+            uphill = 0.5 * cell * jnp.sign(g)
+            d = jnp.clip(jnp.where(concave, newton, uphill), -cell, cell)
+            p_new = jnp.clip(p + d, lo, hi)
+            f_new = f(p_new)
+            better = f_new > fp
+            return (jnp.where(better, p_new, p), jnp.where(better, f_new, fp), jnp.where(better, f_new - fp, 0.0)), None
+
+        p0 = jnp.stack([x0, t0])
+        (p, fp, gain), _ = jax.lax.scan(step, (p0, f(p0), jnp.zeros_like(t0)), None, length=newton_steps)
+        return p, fp, gain
+
+    p_all, f_all, gain_all = jax.vmap(refine_one)(*stop_gradient((x0, t0, sign0)))
+    best = jnp.argmax(f_all)
+    p_best = jax.lax.stop_gradient(p_all[best])
+    x_star = p_best[0]
+    # A peak at the window's end moves with the window (which depends on the board): keep that dependence.
+    at_end = p_best[1] >= window * (1.0 - 1e-9)
+    t_star = jnp.where(at_end, window, p_best[1])
+    q = modal(t_star)
+    value = jnp.abs(jnp.sum(coeffs * q * mode_shapes(x_star, length, q.shape[-1])))
+    err = jax.lax.stop_gradient(gain_all[best] / jnp.maximum(f_all[best], jnp.finfo(A.dtype).tiny))
+    return FieldPeak(value, x_star, t_star, err)

@@ -1,0 +1,347 @@
+"""From a scene (or a board and its support motion) to peak stress, strain and deflection.
+
+`simulate` validates eagerly, then runs one compiled function: housing impact -> support jumps -> support motion
+-> modal response (closed form or diffrax) -> peaks and a convergence check.
+"""
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from ._board import fundamental_period, modal_velocity_jumps, natural_frequencies, unit_response, wavenumbers
+from ._checks import Flag, combine, flag_if, is_concrete
+from ._impact import LAWS, ImpactResult
+from ._integrate import SOLVERS, solve_modes
+from ._kinematics import HousingImpact, housing_impact, support_jumps
+from ._motion import HalfSine, Impulse, Record
+from ._peaks import FieldPeak, field_on_grid, find_peak
+from ._scene import Board, Scene, check_scene, scene_flags
+
+METHODS = ("closed_form", "diffrax")
+
+
+class Numerics(eqx.Module):
+    """How to compute the board's response (all fields are static configuration).
+
+    - `method`: `"closed_form"` (exact modal response to an impulse or half-sine, damped or not) or `"diffrax"`
+      (numerical; needed for a `Record` and for `stretching`).
+    - `solver`, `rtol`, `atol`, `max_steps`: the diffrax solver by name (Tsit5, Dopri5, Dopri8, Kvaerno3,
+      Kvaerno5, ImplicitEuler, Heun, Bosh3) and its PID controller.
+    - `n_modes`: `None` picks the count from the scene (modes up to f_k tau >= `pulse_modes`, at least
+      `min_modes`, at most `max_modes`) and checks it against twice as many (or half as many when at the cap);
+      an int means exactly modes 1..n_modes, checked against half as many.
+    - `window`: time window (s); `None` is the pulse duration plus one fundamental period.
+    - `points_per_period`: time-grid points per period of the highest computed mode (N = 0 estimate);
+      `x_points_per_mode`: spatial grid points per computed mode.
+    - `refine`: Newton refinement of the grid's best `candidates` peaks (`newton_steps` each).
+    - `convergence_rtol`: `converged` when the mode check changes the peak stress by less than this.
+    - `stretching`: nonlinear mid-plane stretching for axially immovable supports (diffrax only).
+    - `law`: restitution law of the housing impact.
+    """
+
+    method: str = eqx.field(static=True, default="closed_form")
+    solver: str = eqx.field(static=True, default="Tsit5")
+    n_modes: int | None = eqx.field(static=True, default=None)
+    max_modes: int = eqx.field(static=True, default=16)
+    min_modes: int = eqx.field(static=True, default=4)
+    pulse_modes: float = eqx.field(static=True, default=2.0)
+    window: float | None = eqx.field(static=True, default=None)
+    rtol: float = eqx.field(static=True, default=1e-8)
+    atol: float = eqx.field(static=True, default=1e-12)
+    max_steps: int = eqx.field(static=True, default=16384)
+    points_per_period: int = eqx.field(static=True, default=4)
+    x_points_per_mode: int = eqx.field(static=True, default=4)
+    refine: bool = eqx.field(static=True, default=True)
+    candidates: int = eqx.field(static=True, default=4)
+    newton_steps: int = eqx.field(static=True, default=6)
+    convergence_rtol: float = eqx.field(static=True, default=1e-3)
+    stretching: bool = eqx.field(static=True, default=False)
+    law: str = eqx.field(static=True, default="poisson")
+
+    def __check_init__(self):
+        def bad(field, value, valid):
+            raise ValueError(f"Numerics.{field} = {value!r}; valid: {valid}")
+
+        if self.method not in METHODS:
+            bad("method", self.method, ", ".join(METHODS))
+        if self.solver not in SOLVERS:
+            bad("solver", self.solver, ", ".join(SOLVERS))
+        if self.law not in LAWS:
+            bad("law", self.law, ", ".join(LAWS))
+        if self.n_modes is not None and (not isinstance(self.n_modes, int) or self.n_modes < 1):
+            bad("n_modes", self.n_modes, "None or an int >= 1")
+        if not (isinstance(self.max_modes, int) and self.max_modes >= 2):
+            bad("max_modes", self.max_modes, "an int >= 2")
+        if not (1 <= self.min_modes <= self.max_modes):
+            bad("min_modes", self.min_modes, f"an int in [1, max_modes = {self.max_modes}]")
+        if self.window is not None and not (self.window > 0 and math.isfinite(self.window)):
+            bad("window", self.window, "None or a finite time > 0 s")
+        for name in ("rtol", "atol", "convergence_rtol", "pulse_modes"):
+            if not getattr(self, name) > 0:
+                bad(name, getattr(self, name), "> 0")
+        for name in ("points_per_period", "x_points_per_mode", "candidates", "max_steps"):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
+                bad(name, getattr(self, name), "an int >= 1")
+        if self.stretching and self.method != "diffrax":
+            raise ValueError('Numerics.stretching = True needs Numerics.method = "diffrax" (it has no closed form)')
+
+    @property
+    def computed_modes(self) -> int:
+        return self.max_modes if self.n_modes is None else self.n_modes
+
+    def grid_shape(self) -> tuple[int, int]:
+        """(nx, nt): with N = 0 mode k makes k^2 oscillations per fundamental period, so the top mode needs about
+        M^2 + a few periods over the default window."""
+        M = self.computed_modes
+        return self.x_points_per_mode * M + 1, self.points_per_period * (M * M + 8) + 1
+
+
+class Peak(eqx.Module):
+    """Peak bending response over the board and the window.
+
+    `stress` (Pa), `strain` (-), where (`x` from end A, m) and when (`t`, s); `deflection` (m, relative to the
+    chord AB) with its own `deflection_x`, `deflection_t`; `search_error`: relative error estimate of the stress
+    peak search."""
+
+    stress: Float[Array, ""]
+    strain: Float[Array, ""]
+    x: Float[Array, ""]
+    t: Float[Array, ""]
+    deflection: Float[Array, ""]
+    deflection_x: Float[Array, ""]
+    deflection_t: Float[Array, ""]
+    search_error: Float[Array, ""]
+
+
+class Response(eqx.Module):
+    """What a drop does to the board.
+
+    - `impulse`: the housing's `ImpactResult` (None from `board_response`); `housing`: the `HousingImpact`.
+    - `support_jumps`: (dvA, dvB), m/s, normal to the board.
+    - `peak`: a `Peak`.
+    - `frequencies`: natural frequencies of the computed modes, Hz.
+    - `n_modes`: modes in the reported peak; `check_modes`: modes of the convergence check.
+    - `error_estimate`: |peak(n_modes) - peak(check_modes)| / peak(n_modes), relative, for the stress.
+    - `converged`: `error_estimate <= Numerics.convergence_rtol`.
+    - `window`: time window, s. `flags`: `Flag` mask (0 = valid; otherwise the peak fields are NaN).
+    """
+
+    impulse: ImpactResult | None
+    housing: HousingImpact | None
+    support_jumps: Float[Array, "2"]
+    peak: Peak
+    frequencies: Float[Array, " n"]
+    n_modes: Int[Array, ""]
+    check_modes: Int[Array, ""]
+    error_estimate: Float[Array, ""]
+    converged: Bool[Array, ""]
+    window: Float[Array, ""]
+    flags: Int[Array, ""]
+
+
+class ClosedFormModes(eqx.Module):
+    """q_k(t) = beta_k R_k(t): exact modal response to a half-sine (or ideal impulse) at the supports."""
+
+    omega: Float[Array, " n"]
+    zeta: Float[Array, ""]
+    duration: Float[Array, ""]
+    beta: Float[Array, " n"]
+
+    def __call__(self, t) -> Float[Array, " n"]:
+        return self.beta * unit_response(t, self.omega, self.zeta, self.duration)
+
+
+def support_motion(scene: Scene, jumps) -> HalfSine:
+    """The supports' motion in a drop: a half-sine of the contact's duration (an ideal impulse when it is 0)."""
+    return HalfSine(jumps[0], jumps[1], scene.contact.duration)
+
+
+def _mode_counts(board: Board, motion, numerics: Numerics):
+    M = numerics.computed_modes
+    if numerics.n_modes is not None:
+        return jnp.int32(M), jnp.int32(max(M // 2, 1))
+    if isinstance(motion, Record):
+        duration = motion.t[-1] - motion.t[0]
+    else:
+        duration = motion.as_half_sine().duration
+    f_tau = natural_frequencies(board, M) / (2 * math.pi) * duration
+    needed = jnp.sum(f_tau < numerics.pulse_modes) + 1  # first k with f_k tau >= target
+    used = jnp.clip(needed, numerics.min_modes, M).astype(jnp.int32)
+    check = jnp.where(2 * used <= M, 2 * used, used // 2).astype(jnp.int32)
+    return used, check
+
+
+def _window(board: Board, motion, numerics: Numerics):
+    if numerics.window is not None:
+        return jnp.asarray(numerics.window, dtype=float)
+    end = motion.end_time if isinstance(motion, Record) else motion.as_half_sine().duration
+    return end + fundamental_period(board)
+
+
+def _modal_solution(board: Board, motion, numerics: Numerics, window, mask):
+    M = numerics.computed_modes
+    if numerics.method == "closed_form":
+        if isinstance(motion, Record):
+            raise ValueError('a Record support motion needs Numerics(method="diffrax") (it has no closed form)')
+        pulse = motion.as_half_sine()
+        beta = modal_velocity_jumps(jnp.stack([pulse.dvA, pulse.dvB]), M) * mask
+        omega = natural_frequencies(board, M)
+        return ClosedFormModes(omega, board.damping_ratio, pulse.duration, beta), jnp.asarray(False)
+    return solve_modes(
+        board,
+        motion,
+        M,
+        window,
+        mask,
+        solver=numerics.solver,
+        rtol=numerics.rtol,
+        atol=numerics.atol,
+        max_steps=numerics.max_steps,
+        stretching=numerics.stretching,
+    )
+
+
+def _respond(board: Board, motion, numerics: Numerics, flags) -> Response:
+    M = numerics.computed_modes
+    used, check = _mode_counts(board, motion, numerics)
+    window = _window(board, motion, numerics)
+    k = jnp.arange(1, M + 1)
+    computed = jnp.maximum(used, check)
+    modal, failed = _modal_solution(board, motion, numerics, window, (k <= computed).astype(float))
+    nx, nt = numerics.grid_shape()
+    x = jnp.linspace(0.0, 1.0, nx) * board.length
+    t = jnp.linspace(0.0, 1.0, nt) * window
+    Q = jax.vmap(modal)(t)
+    curvature = -(wavenumbers(board, M) ** 2)
+    search = dict(candidates=numerics.candidates, newton_steps=numerics.newton_steps, refine=numerics.refine)
+
+    def peak_of(coeffs):
+        return find_peak(coeffs, modal, Q, x, t, board.length, window, **search)
+
+    kappa = peak_of(curvature * (k <= used))
+    kappa_check = peak_of(curvature * (k <= check))
+    deflection = peak_of(jnp.ones(M) * (k <= used))
+    error = jnp.abs(kappa.value - kappa_check.value) / jnp.maximum(kappa.value, jnp.finfo(window.dtype).tiny)
+
+    half_h = board.thickness / 2
+    flags = combine(flags, board.flags(), flag_if(failed, Flag.SOLVER_FAILED))
+    bad = flags != 0
+    nan = lambda v: jnp.where(bad, jnp.nan, v)  # noqa: E731 - flagged results are NaN, never a wrong number
+    peak = Peak(
+        stress=nan(board.youngs_modulus * half_h * kappa.value),
+        strain=nan(half_h * kappa.value),
+        x=nan(kappa.x),
+        t=nan(kappa.t),
+        deflection=nan(deflection.value),
+        deflection_x=nan(deflection.x),
+        deflection_t=nan(deflection.t),
+        search_error=kappa.error,
+    )
+    if isinstance(motion, Record):
+        jumps = motion.velocity_jumps
+    else:
+        pulse = motion.as_half_sine()
+        jumps = jnp.stack([pulse.dvA, pulse.dvB])
+    return Response(
+        impulse=None,
+        housing=None,
+        support_jumps=jumps,
+        peak=peak,
+        frequencies=natural_frequencies(board, M) / (2 * math.pi),
+        n_modes=used,
+        check_modes=check,
+        error_estimate=error,
+        converged=(error <= numerics.convergence_rtol) & ~bad,
+        window=window,
+        flags=flags,
+    )
+
+
+@eqx.filter_jit
+def _board_response_jit(board, motion, numerics):
+    return _respond(board, motion, numerics, jnp.int32(0))
+
+
+def board_response(board: Board, motion, numerics: Numerics | None = None) -> Response:
+    """Peak response of a board to a support motion: `Impulse`, `HalfSine` or `Record` (the last needs
+    `Numerics(method="diffrax")`). Jit- and vmap-able."""
+    numerics = Numerics() if numerics is None else numerics
+    if not isinstance(motion, (Impulse, HalfSine, Record)):
+        raise TypeError(f"motion must be an Impulse, HalfSine or Record, got {type(motion).__name__}")
+    if isinstance(motion, Record) and numerics.method != "diffrax":
+        raise ValueError('a Record support motion needs Numerics(method="diffrax") (it has no closed form)')
+    if is_concrete(board):
+        from ._checks import raise_if_flagged
+
+        raise_if_flagged(board.flags(), "invalid board")
+    return _board_response_jit(board, motion, numerics)
+
+
+def _simulate(scene: Scene, numerics: Numerics) -> Response:
+    hit = housing_impact(scene, law=numerics.law)
+    jumps = support_jumps(scene, hit)
+    response = _respond(scene.board, support_motion(scene, jumps), numerics, combine(scene_flags(scene), hit.flags))
+    return eqx.tree_at(lambda r: (r.impulse, r.housing), response, (hit.impact, hit), is_leaf=lambda x: x is None)
+
+
+_simulate_jit = eqx.filter_jit(_simulate)
+
+
+def simulate(scene: Scene, numerics: Numerics | None = None) -> Response:
+    """Simulate one drop: the housing's corner impact, the board's support jumps, its vibration, and the peak
+    bending stress, strain and deflection, where and when.
+
+    Concrete scenes are validated eagerly (`ValueError` naming the field and range); under `jit`/`vmap` problems
+    come back in `Response.flags` with NaN peaks.
+    """
+    numerics = Numerics() if numerics is None else numerics
+    if is_concrete(scene):
+        check_scene(scene)
+        housing_impact(scene, law=numerics.law)  # eager errors for flat landings with motion, separating contacts
+    return _simulate_jit(scene, numerics)
+
+
+def peak_stress(scene: Scene, numerics: Numerics | None = None) -> Float[Array, ""]:
+    """Peak bending stress (Pa) of a drop: a scalar, differentiable with respect to every float field of scene."""
+    return simulate(scene, numerics).peak.stress
+
+
+class Fields(eqx.Module):
+    """Deflection (m), strain (-) and stress (Pa) on a grid: arrays of shape (len(x), len(t))."""
+
+    x: Float[Array, " nx"]
+    t: Float[Array, " nt"]
+    deflection: Float[Array, "nx nt"]
+    strain: Float[Array, "nx nt"]
+    stress: Float[Array, "nx nt"]
+
+
+def response_fields(scene: Scene, numerics: Numerics | None = None, nx: int = 101, nt: int = 801) -> Fields:
+    """Deflection, strain and stress over (x, t) for a scene, with the modes `simulate` reports.
+
+    Strain and stress are signed: those of the face on the board normal's side (-(h/2) u_xx; positive is tension).
+    """
+    numerics = Numerics() if numerics is None else numerics
+    response = simulate(scene, numerics)
+    return _fields(scene, response, numerics, nx, nt)
+
+
+@eqx.filter_jit
+def _fields(scene, response, numerics, nx, nt):
+    board = scene.board
+    M = numerics.computed_modes
+    motion = support_motion(scene, response.support_jumps)
+    k = jnp.arange(1, M + 1)
+    used = response.n_modes
+    modal, _ = _modal_solution(board, motion, numerics, response.window, (k <= used).astype(float))
+    x = jnp.linspace(0.0, 1.0, nx) * board.length
+    t = jnp.linspace(0.0, 1.0, nt) * response.window
+    Q = jax.vmap(modal)(t)
+    mask = (k <= used).astype(float)
+    u = field_on_grid(mask, Q, x, board.length)
+    curvature = field_on_grid(-(wavenumbers(board, M) ** 2) * mask, Q, x, board.length)
+    strain = -board.thickness / 2 * curvature
+    return Fields(x, t, u, strain, board.youngs_modulus * strain)
