@@ -12,7 +12,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ._board import fundamental_period, modal_velocity_jumps, natural_frequencies, unit_response, wavenumbers
-from ._checks import Flag, combine, flag_if, is_concrete
+from ._checks import Flag, combine, flag_if, is_concrete, raise_if_flagged
 from ._impact import LAWS, ImpactResult
 from ._integrate import SOLVERS, solve_modes
 from ._kinematics import HousingImpact, housing_impact, support_jumps
@@ -218,12 +218,10 @@ def _respond(board: Board, motion, numerics: Numerics, flags) -> Response:
     curvature = -(wavenumbers(board, M) ** 2)
     search = dict(candidates=numerics.candidates, newton_steps=numerics.newton_steps, refine=numerics.refine)
 
-    def peak_of(coeffs):
-        return find_peak(coeffs, modal, Q, x, t, board.length, window, **search)
-
-    kappa = peak_of(curvature * (k <= used))
-    kappa_check = peak_of(curvature * (k <= check))
-    deflection = peak_of(jnp.ones(M) * (k <= used))
+    # One batched search for the three fields keeps the compiled program small.
+    coeffs = jnp.stack([curvature * (k <= used), curvature * (k <= check), jnp.ones(M) * (k <= used)])
+    peaks = jax.vmap(lambda c: find_peak(c, modal, Q, x, t, board.length, window, **search))(coeffs)
+    kappa, kappa_check, deflection = (jax.tree_util.tree_map(lambda v: v[i], peaks) for i in range(3))
     error = jnp.abs(kappa.value - kappa_check.value) / jnp.maximum(kappa.value, jnp.finfo(window.dtype).tiny)
 
     half_h = board.thickness / 2
@@ -273,11 +271,11 @@ def board_response(board: Board, motion, numerics: Numerics | None = None) -> Re
         raise TypeError(f"motion must be an Impulse, HalfSine or Record, got {type(motion).__name__}")
     if isinstance(motion, Record) and numerics.method != "diffrax":
         raise ValueError('a Record support motion needs Numerics(method="diffrax") (it has no closed form)')
-    if is_concrete(board):
-        from ._checks import raise_if_flagged
-
-        raise_if_flagged(board.flags(), "invalid board")
-    return _board_response_jit(board, motion, numerics)
+    response = _board_response_jit(board, motion, numerics)
+    if is_concrete(board, motion) and int(response.flags):
+        board.__check_init__()
+        raise_if_flagged(response.flags & ~Flag.SOLVER_FAILED, "board_response")
+    return response
 
 
 def _simulate(scene: Scene, numerics: Numerics) -> Response:
@@ -298,10 +296,13 @@ def simulate(scene: Scene, numerics: Numerics | None = None) -> Response:
     come back in `Response.flags` with NaN peaks.
     """
     numerics = Numerics() if numerics is None else numerics
-    if is_concrete(scene):
+    response = _simulate_jit(scene, numerics)
+    if is_concrete(scene) and int(response.flags):
+        # The compiled run found a problem: the eager checks name the field and its valid range.
         check_scene(scene)
-        housing_impact(scene, law=numerics.law)  # eager errors for flat landings with motion, separating contacts
-    return _simulate_jit(scene, numerics)
+        housing_impact(scene, law=numerics.law)
+        raise_if_flagged(response.flags & ~Flag.SOLVER_FAILED, "simulate")
+    return response
 
 
 def peak_stress(scene: Scene, numerics: Numerics | None = None) -> Float[Array, ""]:

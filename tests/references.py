@@ -110,3 +110,40 @@ def random_contact(rng):
 def point_velocity(v_G, w, r):
     """Velocity of a rigid-body point at offset r from G: v_G + w z x r."""
     return np.asarray(v_G) + w * np.array([-r[1], r[0]])
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Board: frequencies, modal impulse response, a dense-grid peak.
+
+
+def beam_frequencies(EI, rhoA, N, L, n):
+    """omega_k (rad/s) of a pinned-pinned beam with axial force N, from the textbook formula."""
+    k = np.arange(1, n + 1)
+    kap = k * np.pi / L
+    return np.sqrt((EI * kap**4 + N * kap**2) / rhoA)
+
+
+def dense_impulse_peak(dvA, dvB, EI, rhoA, L, E, h, n_modes, window, nx=801, nt=40001):
+    """Peak |stress| of an undamped beam after ideal support velocity jumps, by brute force on a dense grid.
+
+    Each mode is a free oscillation from zero displacement with the modal velocity the jumps leave:
+    the Galerkin projection of -(dvA (1 - x/L) + dvB x/L) onto sin(k pi x / L), computed here by quadrature.
+    """
+    xq = np.linspace(0, L, 20001)
+    w = beam_frequencies(EI, rhoA, 0.0, L, n_modes)
+    x = np.linspace(0, L, nx)
+    t = np.linspace(0, window, nt)
+    curv = np.zeros((nx, nt))
+    for k in range(1, n_modes + 1):
+        shape = np.sin(k * np.pi * xq / L)
+        rigid = -(dvA * (1 - xq / L) + dvB * xq / L)
+        beta = np.trapezoid(rigid * shape, xq) / np.trapezoid(shape * shape, xq)
+        q = beta * np.sin(w[k - 1] * t) / w[k - 1]
+        curv -= (k * np.pi / L) ** 2 * np.outer(np.sin(k * np.pi * x / L), q)
+    i, j = np.unravel_index(np.abs(curv).argmax(), curv.shape)
+    return E * h / 2 * abs(curv[i, j]), x[i], t[j]
+
+
+def duffing_backbone(omega, gamma, amplitude):
+    """First-order harmonic balance of q'' + omega^2 q + gamma q^3 = 0: omega_nl^2 = omega^2 + 3/4 gamma A^2."""
+    return np.sqrt(omega**2 + 0.75 * gamma * amplitude**2)
