@@ -42,5 +42,9 @@ from ._simulate import (
     simulate as simulate,
     support_motion as support_motion,
 )
-from ._plots import plot_impact as plot_impact
+from ._plots import (
+    plot_deflected_board as plot_deflected_board,
+    plot_impact as plot_impact,
+    plot_stress_map as plot_stress_map,
+)
 __version__ = "0.1.0"

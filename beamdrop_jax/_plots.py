@@ -49,3 +49,39 @@ def plot_impact(B, v0, friction, restitution, law: str = "poisson", *, ax=None, 
     ax.set_title(title or f"Impact process: {mode}; P = ({float(res.P[0]):.4g}, {float(res.P[1]):.4g}) N s")
     ax.legend(loc="lower left", fontsize=8)
     return fig
+
+
+def plot_stress_map(fields, response, *, ax=None):
+    """Bending stress over the board (x from end A) and time as a heat map, with the peak marked."""
+    fig, ax = _axes(ax, (7.0, 4.5))
+    x_mm = np.asarray(fields.x) * 1e3
+    t_ms = np.asarray(fields.t) * 1e3
+    stress = np.asarray(fields.stress) / 1e6
+    lim = np.abs(stress).max()
+    mesh = ax.pcolormesh(t_ms, x_mm, stress, cmap="RdBu_r", vmin=-lim, vmax=lim, shading="auto", rasterized=True)
+    fig.colorbar(mesh, ax=ax, label="bending stress (MPa), normal-side face")
+    peak = response.peak
+    ax.plot(float(peak.t) * 1e3, float(peak.x) * 1e3, "k*", ms=14, mfc="yellow",
+            label=f"peak |stress| {float(peak.stress) / 1e6:.1f} MPa")
+    ax.set_xlabel("time after impact (ms)")
+    ax.set_ylabel("position along the board from end A (mm)")
+    ax.set_title(f"Stress over the board and time ({int(response.n_modes)} modes)")
+    ax.legend(loc="upper right", fontsize=8)
+    return fig
+
+
+def plot_deflected_board(fields, response, *, ax=None):
+    """Deflection relative to the chord AB at the time of peak stress, with the peak location marked."""
+    fig, ax = _axes(ax, (6.5, 3.5))
+    t_idx = int(np.abs(np.asarray(fields.t) - float(response.peak.t)).argmin())
+    x_mm = np.asarray(fields.x) * 1e3
+    u_mm = np.asarray(fields.deflection)[:, t_idx] * 1e3
+    ax.plot(x_mm, u_mm, color="tab:blue", lw=2, label=f"t = {float(fields.t[t_idx]) * 1e3:.3f} ms")
+    ax.plot([x_mm[0], x_mm[-1]], [0, 0], "k^", ms=10, label="pinned supports A, B")
+    ax.axvline(float(response.peak.x) * 1e3, color="tab:red", ls="--", lw=1, label="peak stress location")
+    ax.axhline(0, color="0.6", lw=0.8)
+    ax.set_xlabel("position along the board from end A (mm)")
+    ax.set_ylabel("deflection from chord AB (mm)")
+    ax.set_title("Deflected board at the time of peak stress")
+    ax.legend(fontsize=8)
+    return fig

@@ -61,6 +61,59 @@ def cmd_impact(args):
         _save(fig, out / "impact.png")
 
 
+def _numerics(args):
+    import beamdrop_jax as bd
+
+    kw = {}
+    if getattr(args, "method", None):
+        kw["method"] = args.method
+    if getattr(args, "solver", None):
+        kw["solver"] = args.solver
+    if getattr(args, "n_modes", None):
+        kw["n_modes"] = args.n_modes
+    return bd.Numerics(**kw)
+
+
+def cmd_drop(args):
+    import beamdrop_jax as bd
+
+    scene = _scene(args)
+    numerics = _numerics(args)
+    res = bd.simulate(scene, numerics)
+    hit, peak = res.housing, res.peak
+    freqs = ", ".join(f"{float(f):.0f}" for f in res.frequencies[:4])
+    tau = float(scene.contact.duration)
+    print(f"Drop of {'scene ' + args.scene if args.scene else 'the default scene'}: "
+          f"{float(scene.drop.height):g} m onto a corner at {float(scene.drop.orientation) * 57.29577951308232:.1f} deg, "
+          + (f"half-sine contact {tau * 1e3:g} ms" if tau > 0 else "ideal impulse"))
+    _table(
+        [
+            ("impulse (Pt, Pn)", f"({float(res.impulse.P[0]):.4f}, {float(res.impulse.P[1]):.4f}) N s"),
+            ("contact mode", "flat landing (translation)" if bool(hit.flat) else bd.ImpactMode(int(res.impulse.mode)).label),
+            ("support jumps (dvA, dvB)", "({:.3f}, {:.3f}) m/s".format(*map(float, res.support_jumps))),
+            ("first frequencies", f"{freqs} Hz"),
+            ("modes used (checked against)", f"{int(res.n_modes)} ({int(res.check_modes)})"),
+            ("peak stress", f"{float(peak.stress) / 1e6:.2f} MPa"),
+            ("peak strain", f"{float(peak.strain) * 1e6:.1f} microstrain"),
+            ("peak deflection", f"{float(peak.deflection) * 1e3:.3f} mm at x = {float(peak.deflection_x) * 1e3:.1f} mm, "
+                                f"t = {float(peak.deflection_t) * 1e3:.3f} ms"),
+            ("peak stress at", f"x = {float(peak.x) * 1e3:.1f} mm from end A, t = {float(peak.t) * 1e3:.3f} ms"),
+            ("converged", ("yes" if bool(res.converged) else "NO")
+                          + f" (mode check changes the peak by {float(res.error_estimate) * 100:.3f} %)"),
+        ]
+    )
+    if not bool(res.converged):
+        print("  note: not converged. An ideal impulse (duration 0) never converges in the mode count; "
+              "give Contact.duration a physical value (0.05-1 ms).")
+    if not args.no_plots:
+        out = _out(args)
+        fields = bd.response_fields(scene, numerics)
+        _save(bd.plot_stress_map(fields, res), out / "stress_map.png")
+        _save(bd.plot_deflected_board(fields, res), out / "deflection.png")
+        fig = bd.plot_impact(hit.B, hit.v0, scene.contact.friction, scene.contact.restitution, law=numerics.law)
+        _save(fig, out / "impact.png")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="beamdrop", description="Differentiable drop simulation of a board inside a device (SI units)."
@@ -80,6 +133,17 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.add_argument("--law", default="poisson", choices=["poisson", "newton", "stronge"], help="restitution law")
     p.set_defaults(func=cmd_impact)
+
+    p = sub.add_parser(
+        "drop",
+        help="the main job: one drop -> impulse, support jumps (m/s), frequencies (Hz), peak stress (MPa), strain "
+        "(microstrain), deflection (mm), where and when; figures",
+    )
+    common(p)
+    p.add_argument("--method", choices=["closed_form", "diffrax"], help="board response method (default closed_form)")
+    p.add_argument("--solver", help="diffrax solver name (Tsit5, Dopri5, Dopri8, Kvaerno5, ImplicitEuler, ...)")
+    p.add_argument("--n-modes", type=int, help="exactly this many modes (default: chosen from the scene)")
+    p.set_defaults(func=cmd_drop)
     return parser
 
 
