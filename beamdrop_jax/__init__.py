@@ -37,6 +37,8 @@ from ._simulate import (
     Peak as Peak,
     Response as Response,
     board_response as board_response,
+    peak_deflection as peak_deflection,
+    peak_strain as peak_strain,
     peak_stress as peak_stress,
     response_fields as response_fields,
     simulate as simulate,
