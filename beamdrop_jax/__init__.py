@@ -44,9 +44,25 @@ from ._simulate import (
     simulate as simulate,
     support_motion as support_motion,
 )
+from ._optimize import (
+    PlacementResult as PlacementResult,
+    drop_set as drop_set,
+    optimize_placement as optimize_placement,
+    placement_landscape as placement_landscape,
+    placement_from_unconstrained as placement_from_unconstrained,
+    placement_objective as placement_objective,
+    risk as risk,
+)
+from ._sensitivity import (
+    Sensitivity as Sensitivity,
+    scalar_fields as scalar_fields,
+    sensitivities as sensitivities,
+    smooth_peak_stress as smooth_peak_stress,
+)
 from ._plots import (
     plot_deflected_board as plot_deflected_board,
     plot_impact as plot_impact,
+    plot_placement as plot_placement,
     plot_stress_map as plot_stress_map,
 )
 __version__ = "0.1.0"

@@ -166,33 +166,26 @@ def optimize_placement(
         orientations = np.radians(np.linspace(15.0, 75.0, 7))
     drops = drop_set(scene, orientations, heights)
     n_drops = int(drops.drop.orientation.shape[0])
-    f = placement_objective(scene, drops, objective, alpha, numerics, margin)
-    optimizer = optax.adam(0.05) if optimizer is None else optimizer
+    optimizer = _DEFAULT_OPTIMIZER if optimizer is None else optimizer
     key = jax.random.PRNGKey(0) if key is None else key
 
     u0 = unconstrained_from_placement(scene, scene.placement, margin)
     others = jax.random.uniform(key, (starts - 1, 3), minval=-1.5, maxval=1.5)
     U = jnp.concatenate([u0[None], others], axis=0)
     state = jax.vmap(optimizer.init)(U)
-    value_and_grad = jax.vmap(jax.value_and_grad(f))
-
-    @jax.jit
-    def step(U, state):
-        values, grads = value_and_grad(U)
-        updates, state = jax.vmap(optimizer.update)(grads, state, U)
-        return optax.apply_updates(U, updates), state, values
+    config = (objective, alpha, numerics, float(margin))
 
     history, path_u = [], [U]
     best_u, best_v = U, jnp.full((starts,), jnp.inf)
     for _ in tqdm(range(steps), desc="optimize_placement", disable=not progress, leave=False):
-        U_new, state, values = step(U, state)
+        U_new, state, values = _step(U, state, scene, drops, optimizer, config)
         improved = values < best_v
         best_v = jnp.where(improved, values, best_v)
         best_u = jnp.where(improved[:, None], U, best_u)
         history.append(values)
         U = U_new
         path_u.append(U)
-    final = jax.jit(jax.vmap(f))(U)
+    final = _values(U, scene, drops, config)
     improved = final < best_v
     best_v = jnp.where(improved, final, best_v)
     best_u = jnp.where(improved[:, None], U, best_u)
@@ -213,5 +206,57 @@ def optimize_placement(
     )
 
 
+_DEFAULT_OPTIMIZER = optax.adam(0.05)
+
+
+@eqx.filter_jit
+def _step(U, state, scene, drops, optimizer, config):
+    f = placement_objective(scene, drops, *config)
+    values, grads = jax.vmap(jax.value_and_grad(f))(U)
+    updates, state = jax.vmap(optimizer.update)(grads, state, U)
+    return optax.apply_updates(U, updates), state, values
+
+
+@eqx.filter_jit
+def _values(U, scene, drops, config):
+    return jax.vmap(placement_objective(scene, drops, *config))(U)
+
+
 def _params(p: Placement):
     return jnp.stack([p.centre[0], p.centre[1], p.angle])
+
+
+def placement_landscape(scene: Scene, result: PlacementResult, orientations=None, heights=None, alpha=0.9,
+                        numerics=None, margin=0.0, n=(25, 13)):
+    """The objective (Pa) over board-centre positions (c1, c2) at the optimum's angle: (c1 grid, c2 grid, values
+    of shape (n1, n2)); points where the board would leave the housing are NaN."""
+    numerics = Numerics(n_modes=8) if numerics is None else numerics
+    if orientations is None:
+        orientations = np.radians(np.linspace(15.0, 75.0, 7))
+    drops = drop_set(scene, orientations, heights)
+    phi = result.placement.angle
+    W, H, L = scene.housing.width, scene.housing.height, scene.board.length
+    R1 = float(W / 2 - margin - L / 2 * jnp.abs(jnp.cos(phi)))
+    R2 = float(H / 2 - margin - L / 2 * jnp.abs(jnp.sin(phi)))
+    c1 = np.linspace(-R1, R1, n[0])
+    c2 = np.linspace(-R2, R2, n[1])
+    C1, C2 = np.meshgrid(c1, c2, indexing="ij")
+    centres = jnp.stack([C1.ravel(), C2.ravel()], axis=-1)
+    values = _landscape(centres, phi, drops, (result.objective, alpha, numerics))
+    return c1, c2, np.asarray(values).reshape(C1.shape)
+
+
+@eqx.filter_jit
+def _landscape(centres, phi, drops, config):
+    objective, alpha, numerics = config
+
+    def one(centre):
+        placed = eqx.tree_at(
+            lambda s: (s.placement.centre, s.placement.angle),
+            drops,
+            (jnp.broadcast_to(centre, drops.placement.centre.shape),
+             jnp.broadcast_to(phi, drops.placement.angle.shape)),
+        )
+        return risk(jax.vmap(lambda s: peak_stress(s, numerics))(placed), objective, alpha)
+
+    return jax.lax.map(one, centres, batch_size=16)

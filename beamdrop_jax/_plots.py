@@ -85,3 +85,51 @@ def plot_deflected_board(fields, response, *, ax=None):
     ax.set_title("Deflected board at the time of peak stress")
     ax.legend(fontsize=8)
     return fig
+
+
+def _draw_housing(ax, scene, placement, **style):
+    from ._scene import board_ends
+
+    from matplotlib.patches import Rectangle
+
+    W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
+    ax.add_patch(Rectangle((-W / 2, -H / 2), W, H, fill=False, lw=1.5, color="0.3"))
+    ends = np.asarray(board_ends(placement, scene.board.length)) * 1e3
+    ax.plot(ends[:, 0], ends[:, 1], **style)
+
+
+def plot_placement(scene, result, landscape, *, axes=None):
+    """Left: the objective over board-centre positions at the optimal angle, with the optimiser's path.
+    Right: the housing (body axes, mm) with the board before and after."""
+    import matplotlib.pyplot as plt
+
+    if axes is None:
+        fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), layout="constrained")
+    ax1, ax2 = axes
+    fig = ax1.figure
+    c1, c2, values = landscape
+    mesh = ax1.pcolormesh(np.asarray(c1) * 1e3, np.asarray(c2) * 1e3, np.asarray(values).T / 1e6,
+                          shading="auto", cmap="viridis")
+    fig.colorbar(mesh, ax=ax1, label=f"{result.objective} peak stress over drops (MPa)")
+    path = np.asarray(result.path)
+    ax1.plot(path[:, 0] * 1e3, path[:, 1] * 1e3, "w.-", lw=1, ms=3, label="optimiser path (best start)")
+    ax1.plot(path[0, 0] * 1e3, path[0, 1] * 1e3, "wo", ms=7, mfc="none")
+    ax1.plot(path[-1, 0] * 1e3, path[-1, 1] * 1e3, "r*", ms=14, label="optimum")
+    ax1.set_xlabel("board centre c1 along the width (mm)")
+    ax1.set_ylabel("board centre c2 along the height (mm)")
+    ax1.set_title(f"Objective at the optimal angle {np.degrees(float(result.placement.angle)):.1f} deg")
+    ax1.legend(fontsize=8, loc="lower right")
+    _draw_housing(ax2, scene, scene.placement, color="tab:gray", lw=4, ls="--",
+                  label=f"before: {float(result.initial_value) / 1e6:.1f} MPa")
+    _draw_housing(ax2, scene, result.placement, color="tab:red", lw=4,
+                  label=f"after: {float(result.value) / 1e6:.1f} MPa")
+    ax2.plot(0, 0, "k+", ms=10, label="centre of mass G")
+    ax2.set_aspect("equal")
+    ax2.set_xlabel("e1 (mm)")
+    ax2.set_ylabel("e2 (mm)")
+    ax2.set_title(f"Board placement, {result.objective} objective")
+    ax2.legend(fontsize=8, loc="upper right")
+    W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
+    ax2.set_xlim(-0.6 * W, 0.6 * W)
+    ax2.set_ylim(-0.6 * H - 0.3 * H, 0.6 * H + 0.3 * H)
+    return fig

@@ -114,6 +114,58 @@ def cmd_drop(args):
         _save(fig, out / "impact.png")
 
 
+def _angles(spec: str):
+    """'15:75:7' -> 7 angles from 15 to 75 degrees (radians); '30,45' -> those angles."""
+    import numpy as np
+
+    if ":" in spec:
+        lo, hi, n = spec.split(":")
+        return np.radians(np.linspace(float(lo), float(hi), int(n)))
+    return np.radians([float(v) for v in spec.split(",")])
+
+
+def cmd_sensitivity(args):
+    import beamdrop_jax as bd
+
+    scene = _scene(args)
+    rows = bd.sensitivities(scene, _numerics(args), quantity=args.quantity)
+    unit = {"stress": "Pa", "strain": "-", "deflection": "m"}[args.quantity]
+    peak = {"stress": bd.peak_stress, "strain": bd.peak_strain, "deflection": bd.peak_deflection}[args.quantity]
+    print(f"Sensitivity of the peak {args.quantity} ({float(peak(scene, _numerics(args))):.6g} {unit}), "
+          "largest elasticity first")
+    print(f"  {'field':<32} {'value':>13} {'d(peak)/d(field)':>17} {'elasticity':>11}")
+    for r in rows:
+        print(f"  {r.field:<32} {r.value:>13.6g} {r.derivative:>17.6g} {r.elasticity:>11.4f}")
+
+
+def cmd_optimize(args):
+    import beamdrop_jax as bd
+
+    scene = _scene(args)
+    orientations = _angles(args.orientations)
+    heights = [float(h) for h in args.heights.split(",")] if args.heights else None
+    numerics = bd.Numerics(n_modes=args.n_modes or 8)
+    res = bd.optimize_placement(scene, orientations, heights, objective=args.objective, alpha=args.alpha,
+                                numerics=numerics, steps=args.steps, starts=args.starts, margin=args.margin)
+    before, after = scene.placement, res.placement
+    print(f"Board placement, {args.objective} peak stress over {res.n_drops} drops "
+          f"({res.n_evaluations} evaluations with gradients)")
+    _table(
+        [
+            ("before: centre, angle", f"({float(before.centre[0]) * 1e3:.2f}, {float(before.centre[1]) * 1e3:.2f}) mm, "
+                                      f"{float(before.angle) * 57.29577951308232:.2f} deg"),
+            ("before: objective", f"{float(res.initial_value) / 1e6:.2f} MPa"),
+            ("after: centre, angle", f"({float(after.centre[0]) * 1e3:.2f}, {float(after.centre[1]) * 1e3:.2f}) mm, "
+                                     f"{float(after.angle) * 57.29577951308232:.2f} deg"),
+            ("after: objective", f"{float(res.value) / 1e6:.2f} MPa"),
+        ]
+    )
+    if not args.no_plots:
+        landscape = bd.placement_landscape(scene, res, orientations, heights, alpha=args.alpha, numerics=numerics,
+                                           margin=args.margin)
+        _save(bd.plot_placement(scene, res, landscape), _out(args) / "placement.png")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="beamdrop", description="Differentiable drop simulation of a board inside a device (SI units)."
@@ -144,6 +196,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--solver", help="diffrax solver name (Tsit5, Dopri5, Dopri8, Kvaerno5, ImplicitEuler, ...)")
     p.add_argument("--n-modes", type=int, help="exactly this many modes (default: chosen from the scene)")
     p.set_defaults(func=cmd_drop)
+
+    p = sub.add_parser(
+        "sensitivity",
+        help="d(peak)/d(field) and elasticity (% per %) of the peak for every scene field, largest first",
+    )
+    common(p)
+    p.add_argument("--quantity", default="stress", choices=["stress", "strain", "deflection"])
+    p.add_argument("--n-modes", type=int, help="exactly this many modes (default: chosen from the scene)")
+    p.set_defaults(func=cmd_sensitivity)
+
+    p = sub.add_parser(
+        "optimize",
+        help="place the board (centre in mm, angle in deg) to minimise the peak stress (MPa) over a set of drops",
+    )
+    common(p)
+    p.add_argument("--orientations", default="15:75:7", help="drop angles in degrees: 'lo:hi:n' or 'a,b,c'")
+    p.add_argument("--heights", help="drop heights in m, 'h1,h2' (default: the scene's)")
+    p.add_argument("--objective", default="mean", choices=["mean", "max", "cvar"])
+    p.add_argument("--alpha", type=float, default=0.9, help="CVaR level (default 0.9)")
+    p.add_argument("--steps", type=int, default=100)
+    p.add_argument("--starts", type=int, default=4)
+    p.add_argument("--margin", type=float, default=0.0, help="clearance from the housing's edges, m")
+    p.add_argument("--n-modes", type=int, help="modes per drop (default 8)")
+    p.set_defaults(func=cmd_optimize)
     return parser
 
 

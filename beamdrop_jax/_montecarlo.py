@@ -1,0 +1,232 @@
+"""Random drops: how likely is the board to exceed its limit when the product falls at random?
+
+Samples are drawn up front from the key, one stream per randomised field, so the same key gives the same drops
+whatever the chunk size or the number of devices. Chunks of drops are evaluated by one compiled, vmapped function,
+sharded over every local device along a 1-D mesh (`jax.sharding.NamedSharding`). On several hosts, call
+`jax.distributed.initialize()` first: `jax.devices()` then spans the hosts and the same code path shards over all
+of them.
+"""
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jaxtyping import Array, Bool, Float, Int
+from tqdm.auto import tqdm
+
+from ._checks import Flag
+from ._scene import Scene
+from ._simulate import Numerics, _scene_peak
+
+_FIELDS = {
+    "orientation": "drop.orientation",
+    "height": "drop.height",
+    "spin": "drop.spin",
+    "horizontal_speed": "drop.horizontal_speed",
+    "friction": "contact.friction",
+    "restitution": "contact.restitution",
+    "duration": "contact.duration",
+}
+
+
+def _check_spec(name, spec):
+    if spec is None:
+        return
+    if not (isinstance(spec, tuple) and len(spec) == 3 and spec[0] in ("uniform", "lognormal")):
+        raise ValueError(
+            f"DropDistribution.{name} = {spec!r}; valid: None (the scene's value), ('uniform', low, high) or "
+            "('lognormal', median, sigma)"
+        )
+    kind, a, b = spec
+    if kind == "uniform" and not (math.isfinite(a) and math.isfinite(b) and a <= b):
+        raise ValueError(f"DropDistribution.{name}: uniform bounds must be finite with low <= high, got ({a}, {b})")
+    if kind == "lognormal" and not (a > 0 and b >= 0):
+        raise ValueError(f"DropDistribution.{name}: lognormal needs median > 0 and sigma >= 0, got ({a}, {b})")
+
+
+class DropDistribution(eqx.Module):
+    """Which scene fields vary and how: each is None (the scene's value), `("uniform", low, high)` or
+    `("lognormal", median, sigma)`. Default: orientation uniform on [0, 2 pi), everything else as in the scene.
+    Angles in rad, heights in m, spin in rad/s, speeds in m/s, durations in s. Use `DropDistribution.uniform`
+    for (low, high) shorthand."""
+
+    orientation: tuple | None = eqx.field(static=True, default=("uniform", 0.0, 2 * math.pi))
+    height: tuple | None = eqx.field(static=True, default=None)
+    spin: tuple | None = eqx.field(static=True, default=None)
+    horizontal_speed: tuple | None = eqx.field(static=True, default=None)
+    friction: tuple | None = eqx.field(static=True, default=None)
+    restitution: tuple | None = eqx.field(static=True, default=None)
+    duration: tuple | None = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        for name in _FIELDS:
+            _check_spec(name, getattr(self, name))
+
+    def varied(self) -> list[str]:
+        return [name for name in _FIELDS if getattr(self, name) is not None]
+
+    def sample(self, scene: Scene, n: int, key) -> Scene:
+        """n scenes: the varied fields get a leading axis n, the others stay as in `scene`."""
+        out = scene
+        keys = jax.random.split(key, len(_FIELDS))
+        for (name, path), k in zip(_FIELDS.items(), keys):
+            spec = getattr(self, name)
+            if spec is None:
+                continue
+            kind, a, b = spec
+            if kind == "uniform":
+                values = jax.random.uniform(k, (n,), minval=a, maxval=b, dtype=float)
+            else:
+                values = a * jnp.exp(b * jax.random.normal(k, (n,), dtype=float))
+            out = out.replace(**{path: values})
+        return out
+
+
+def sample_axes(samples: Scene, n: int) -> Scene:
+    """vmap `in_axes` for a sampled scene: 0 where a field carries the sample axis, None where it is fixed."""
+    fixed = Scene.default()
+    return jax.tree_util.tree_map(
+        lambda s, f: 0 if (jnp.ndim(s) == jnp.ndim(f) + 1 and jnp.shape(s)[0] == n) else None, samples, fixed
+    )
+
+
+def wilson_interval(k, n, confidence=0.95) -> tuple[float, float]:
+    """Wilson score interval for a binomial proportion k/n."""
+    if n == 0:
+        return (0.0, 1.0)
+    from statistics import NormalDist
+
+    z = NormalDist().inv_cdf(0.5 + confidence / 2)
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+class MonteCarloResult(eqx.Module):
+    """Random drops and their peaks.
+
+    - `samples`: a `Scene` whose varied fields have a leading axis n (re-simulate drop i with `result.scene(i)`).
+    - `peak_stress` (Pa), `peak_strain` (-), `peak_deflection` (m): shape (n,), NaN for invalid drops.
+    - `valid`: (n,) bool; `flags`: (n,) `Flag` masks. Invalid drops (e.g. flat landings with spin, separating
+      contacts) are counted in `n_invalid` and left out of every summary.
+    """
+
+    samples: Scene
+    peak_stress: Float[Array, " n"]
+    peak_strain: Float[Array, " n"]
+    peak_deflection: Float[Array, " n"]
+    flags: Int[Array, " n"]
+    valid: Bool[Array, " n"]
+
+    @property
+    def n(self) -> int:
+        return int(self.valid.shape[0])
+
+    @property
+    def n_invalid(self) -> int:
+        return int(self.n - np.sum(np.asarray(self.valid)))
+
+    def scene(self, i: int) -> Scene:
+        """Drop i as a single scene."""
+        n = self.n
+        return jax.tree_util.tree_map(lambda v: v[i] if (jnp.ndim(v) and jnp.shape(v)[0] == n) else v,
+                                      self.samples, is_leaf=lambda v: False)
+
+    def _values(self, quantity):
+        values = np.asarray(getattr(self, f"peak_{quantity}"))
+        return values[np.asarray(self.valid)]
+
+    def summary(self, quantity: str = "stress", quantiles=(0.5, 0.9, 0.99, 0.999)) -> dict:
+        """Mean, standard deviation and quantiles of a peak over the valid drops."""
+        v = self._values(quantity)
+        out = {"n": int(v.size), "n_invalid": self.n_invalid, "mean": float(v.mean()), "std": float(v.std(ddof=1))}
+        out.update({f"q{q:g}": float(np.quantile(v, q)) for q in quantiles})
+        out["max"] = float(v.max())
+        return out
+
+    def exceedance(self, limit: float, quantity: str = "stress", confidence: float = 0.95):
+        """P(peak > limit) over the valid drops with its Wilson interval: (p, (low, high), count)."""
+        v = self._values(quantity)
+        k = int(np.sum(v > limit))
+        return k / v.size, wilson_interval(k, v.size, confidence), k
+
+
+@eqx.filter_jit
+def _evaluate(samples, axes, numerics):
+    def one(scene):
+        stress, flags = _scene_peak(scene, numerics, "stress")
+        # Strain and deflection from the same peak search would double the cost; stress/E is the strain at the
+        # stress peak exactly, and the deflection peak is searched separately.
+        deflection, _ = _scene_peak(scene, numerics, "deflection")
+        return stress, stress / scene.board.youngs_modulus, deflection, flags
+
+    return jax.vmap(one, in_axes=(axes,))(samples)
+
+
+def _take(tree, axes, start, stop):
+    return jax.tree_util.tree_map(lambda v, a: v if a is None else v[start:stop], tree, axes)
+
+
+def montecarlo(
+    scene: Scene,
+    n: int,
+    key,
+    distribution: DropDistribution | None = None,
+    numerics: Numerics | None = None,
+    batch_size: int | None = None,
+    devices=None,
+    progress: bool = True,
+) -> MonteCarloResult:
+    """Simulate n random drops of `scene` with fields drawn from `distribution`.
+
+    **Arguments:**
+    - `key`: a `jax.random.PRNGKey`; the same key gives the same drops and results for any `batch_size` and
+      device count.
+    - `numerics`: default `Numerics(n_modes=6)`.
+    - `batch_size`: drops per compiled chunk (memory bound); default min(n, 4096), rounded up to a multiple of
+      the device count.
+    - `devices`: devices to shard each chunk over (default all local devices).
+    """
+    if not (isinstance(n, (int, np.integer)) and n >= 1):
+        raise ValueError(f"n = {n!r}; valid: an int >= 1")
+    distribution = DropDistribution() if distribution is None else distribution
+    numerics = Numerics(n_modes=6) if numerics is None else numerics
+    devices = jax.local_devices() if devices is None else list(devices)
+    n_dev = len(devices)
+    batch = min(int(n), 4096) if batch_size is None else int(batch_size)
+    if batch < 1:
+        raise ValueError(f"batch_size = {batch_size}; valid: an int >= 1")
+    batch = -(-batch // n_dev) * n_dev
+    samples = distribution.sample(scene, int(n), key)
+    axes = sample_axes(samples, int(n))
+    mesh = Mesh(np.asarray(devices), ("drops",))
+    sharded = NamedSharding(mesh, PartitionSpec("drops"))
+    replicated = NamedSharding(mesh, PartitionSpec())
+
+    outputs = []
+    for start in tqdm(range(0, int(n), batch), desc="montecarlo", disable=not progress, leave=False):
+        stop = min(start + batch, int(n))
+        chunk = _take(samples, axes, start, stop)
+        pad = batch - (stop - start)
+        if pad:
+            # The last chunk is padded with its own first drop so every chunk has one compiled shape.
+            chunk = jax.tree_util.tree_map(
+                lambda v, a: v if a is None else jnp.concatenate([v, jnp.broadcast_to(v[:1], (pad,) + v.shape[1:])]),
+                chunk, axes)
+        chunk = jax.tree_util.tree_map(
+            lambda v, a: jax.device_put(v, replicated if a is None else sharded), chunk, axes)
+        result = _evaluate(chunk, axes, numerics)
+        outputs.append(jax.tree_util.tree_map(lambda v: np.asarray(v)[: stop - start], result))
+    stress, strain, deflection, flags = (np.concatenate(parts) for parts in zip(*outputs))
+    return MonteCarloResult(
+        samples=samples,
+        peak_stress=jnp.asarray(stress),
+        peak_strain=jnp.asarray(strain),
+        peak_deflection=jnp.asarray(deflection),
+        flags=jnp.asarray(flags),
+        valid=jnp.asarray(flags == Flag.OK),
+    )
