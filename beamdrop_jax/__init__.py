@@ -53,6 +53,12 @@ from ._optimize import (
     placement_objective as placement_objective,
     risk as risk,
 )
+from ._montecarlo import (
+    DropDistribution as DropDistribution,
+    MonteCarloResult as MonteCarloResult,
+    montecarlo as montecarlo,
+    wilson_interval as wilson_interval,
+)
 from ._sensitivity import (
     Sensitivity as Sensitivity,
     scalar_fields as scalar_fields,
@@ -62,6 +68,7 @@ from ._sensitivity import (
 from ._plots import (
     plot_deflected_board as plot_deflected_board,
     plot_impact as plot_impact,
+    plot_montecarlo as plot_montecarlo,
     plot_placement as plot_placement,
     plot_stress_map as plot_stress_map,
 )

@@ -133,3 +133,33 @@ def plot_placement(scene, result, landscape, *, axes=None):
     ax2.set_xlim(-0.6 * W, 0.6 * W)
     ax2.set_ylim(-0.6 * H - 0.3 * H, 0.6 * H + 0.3 * H)
     return fig
+
+
+def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None):
+    """Left: peak against drop orientation (polar). Right: exceedance curve P(peak > s) with the limit marked."""
+    import matplotlib.pyplot as plt
+
+    if axes is None:
+        fig = plt.figure(figsize=(12, 4.8), layout="constrained")
+        axes = (fig.add_subplot(1, 2, 1, projection="polar"), fig.add_subplot(1, 2, 2))
+    ax1, ax2 = axes
+    fig = ax1.figure
+    unit, scale = {"stress": ("MPa", 1e-6), "strain": ("microstrain", 1e6), "deflection": ("mm", 1e3)}[quantity]
+    valid = np.asarray(result.valid)
+    values = np.asarray(getattr(result, f"peak_{quantity}"))[valid] * scale
+    orient = np.broadcast_to(np.asarray(result.samples.drop.orientation), valid.shape)[valid]
+    ax1.scatter(orient, values, s=2, alpha=0.4, c=values, cmap="viridis", rasterized=True)
+    ax1.set_title(f"peak {quantity} ({unit}) against drop orientation", pad=14)
+    ordered = np.sort(values)
+    ccdf = 1.0 - np.arange(1, ordered.size + 1) / ordered.size
+    ax2.semilogy(ordered[:-1], ccdf[:-1], color="tab:blue", lw=2, label=f"{ordered.size} valid drops")
+    if limit is not None:
+        p, (lo, hi), k = result.exceedance(limit, quantity)
+        ax2.axvline(limit * scale, color="tab:red", ls="--",
+                    label=f"limit {limit * scale:.4g} {unit}: P = {p:.3g} (95 % CI {lo:.3g}-{hi:.3g})")
+    ax2.set_xlabel(f"peak {quantity} ({unit})")
+    ax2.set_ylabel("exceedance probability P(peak > value)")
+    ax2.set_title("Exceedance curve (complementary CDF)")
+    ax2.grid(True, which="both", alpha=0.3)
+    ax2.legend(fontsize=8)
+    return fig

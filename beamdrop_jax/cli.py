@@ -166,6 +166,33 @@ def cmd_optimize(args):
         _save(bd.plot_placement(scene, res, landscape), _out(args) / "placement.png")
 
 
+def cmd_montecarlo(args):
+    import jax
+
+    import beamdrop_jax as bd
+
+    scene = _scene(args)
+    numerics = bd.Numerics(n_modes=args.n_modes) if args.n_modes else None
+    res = bd.montecarlo(scene, args.n, jax.random.PRNGKey(args.seed), numerics=numerics, batch_size=args.batch_size)
+    stress, strain = res.summary("stress"), res.summary("strain")
+    print(f"{res.n} random drops (orientation uniform on [0, 360) deg), {res.n_invalid} outside the model and "
+          "left out")
+    _table(
+        [
+            ("peak stress mean +- std", f"{stress['mean'] / 1e6:.2f} +- {stress['std'] / 1e6:.2f} MPa"),
+            ("peak stress median / 99 % / max", f"{stress['q0.5'] / 1e6:.2f} / {stress['q0.99'] / 1e6:.2f} / "
+                                                f"{stress['max'] / 1e6:.2f} MPa"),
+            ("peak strain median / 99 % / max", f"{strain['q0.5'] * 1e6:.0f} / {strain['q0.99'] * 1e6:.0f} / "
+                                                f"{strain['max'] * 1e6:.0f} microstrain"),
+        ]
+    )
+    p, (lo, hi), k = res.exceedance(args.allowable_strain, "strain")
+    print(f"  P(strain > {args.allowable_strain * 1e6:.0f} microstrain) = {p:.4g} ({k} drops; 95 % Wilson interval "
+          f"{lo:.4g} to {hi:.4g})")
+    if not args.no_plots:
+        _save(bd.plot_montecarlo(res, limit=args.allowable_strain, quantity="strain"), _out(args) / "montecarlo.png")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="beamdrop", description="Differentiable drop simulation of a board inside a device (SI units)."
@@ -220,6 +247,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--margin", type=float, default=0.0, help="clearance from the housing's edges, m")
     p.add_argument("--n-modes", type=int, help="modes per drop (default 8)")
     p.set_defaults(func=cmd_optimize)
+
+    p = sub.add_parser(
+        "montecarlo",
+        help="random drops: peak stress (MPa) and strain (microstrain) statistics, P(strain > limit) with a "
+        "confidence interval, polar and exceedance figures",
+    )
+    common(p)
+    p.add_argument("-n", type=int, default=100_000, help="number of drops (default 100000)")
+    p.add_argument("--allowable-strain", type=float, default=2000e-6, help="strain limit (default 2000e-6)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--batch-size", type=int, help="drops per compiled chunk")
+    p.add_argument("--n-modes", type=int, help="modes per drop (default 6)")
+    p.set_defaults(func=cmd_montecarlo)
     return parser
 
 

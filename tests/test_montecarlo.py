@@ -1,0 +1,128 @@
+"""Monte-Carlo drops: batched equals one by one, exceedance intervals, chunk size and device count."""
+
+import json
+import math
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import numpy as np
+import pytest
+
+import beamdrop_jax as bd
+
+NUMERICS = bd.Numerics(n_modes=6)
+
+
+@pytest.fixture(scope="module")
+def result():
+    dist = bd.DropDistribution(
+        height=("lognormal", 1.2, 0.3),
+        friction=("uniform", 0.1, 0.8),
+        restitution=("uniform", 0.2, 0.8),
+        spin=("uniform", -5.0, 5.0),
+        duration=("uniform", 2e-4, 8e-4),
+    )
+    return bd.montecarlo(bd.Scene.default(), 600, jax.random.PRNGKey(3), dist, NUMERICS, batch_size=256,
+                         progress=False)
+
+
+def test_batched_equals_one_by_one(result):
+    assert result.peak_stress.shape == (600,)
+    for i in range(0, 600, 41):
+        scene = result.scene(i)
+        res = bd.simulate(scene, NUMERICS)
+        np.testing.assert_allclose(result.peak_stress[i], res.peak.stress, rtol=1e-10)
+        np.testing.assert_allclose(result.peak_strain[i], res.peak.strain, rtol=1e-10)
+        np.testing.assert_allclose(result.peak_deflection[i], res.peak.deflection, rtol=1e-10)
+
+
+def test_samples_follow_the_distribution(result):
+    h = np.asarray(result.samples.drop.height)
+    np.testing.assert_allclose(np.median(h), 1.2, rtol=0.05)
+    np.testing.assert_allclose(np.std(np.log(h)), 0.3, rtol=0.1)
+    th = np.asarray(result.samples.drop.orientation)
+    assert th.min() >= 0 and th.max() < 2 * math.pi
+    # Fixed fields stay scalars.
+    assert np.ndim(result.samples.housing.mass) == 0
+
+
+def test_exceedance_with_known_answer():
+    # Peak stress ~ sqrt(height) exactly (elasticity 0.5), so with h ~ U(0.5, 2) and the limit at the stress of
+    # h = 1.5 m, P(stress > limit) = P(h > 1.5) = 1/3.
+    scene = bd.Scene.default()
+    dist = bd.DropDistribution(orientation=None, height=("uniform", 0.5, 2.0))
+    res = bd.montecarlo(scene, 3000, jax.random.PRNGKey(11), dist, NUMERICS, progress=False)
+    limit = float(bd.peak_stress(scene.replace(**{"drop.height": 1.5}), NUMERICS))
+    p, (lo, hi), k = res.exceedance(limit * (1 + 1e-9))
+    fraction = float(np.mean(np.asarray(res.samples.drop.height) > 1.5))
+    assert k == round(fraction * 3000)  # exactly the drops above 1.5 m
+    assert lo <= 1 / 3 <= hi, (p, lo, hi)
+    assert hi - lo < 0.04
+
+
+def test_wilson_interval_reference_values():
+    # Wilson (1927) interval for 0/10 and 5/10 at 95 %: textbook values.
+    np.testing.assert_allclose(bd.wilson_interval(0, 10), (0.0, 0.27753), atol=1e-5)
+    np.testing.assert_allclose(bd.wilson_interval(5, 10), (0.23659, 0.76341), atol=1e-5)
+
+
+def test_invalid_drops_are_counted_not_mixed():
+    dist = bd.DropDistribution(friction=("uniform", -0.5, 0.5))
+    res = bd.montecarlo(bd.Scene.default(), 400, jax.random.PRNGKey(0), dist, NUMERICS, progress=False)
+    negative = np.asarray(res.samples.contact.friction) < 0
+    assert res.n_invalid == int(negative.sum()) > 100
+    assert np.all(np.asarray(res.flags)[negative] & bd.Flag.FRICTION_NEGATIVE)
+    assert np.all(np.isnan(np.asarray(res.peak_stress)[negative]))
+    assert res.summary()["n"] == 400 - res.n_invalid
+    assert np.isfinite(res.summary()["mean"])
+
+
+def test_bad_distribution_is_named():
+    with pytest.raises(ValueError, match="DropDistribution.height"):
+        bd.DropDistribution(height=(0.5, 2.0))
+    with pytest.raises(ValueError, match="low <= high"):
+        bd.DropDistribution(friction=("uniform", 0.8, 0.1))
+    with pytest.raises(ValueError, match="n = 0"):
+        bd.montecarlo(bd.Scene.default(), 0, jax.random.PRNGKey(0))
+
+
+SCRIPT = textwrap.dedent(
+    """
+    import json, sys
+    import jax
+    jax.config.update("jax_num_cpu_devices", 8)
+    jax.config.update("jax_enable_x64", True)
+    import numpy as np
+    import beamdrop_jax as bd
+    assert len(jax.devices()) == 8, jax.devices()
+    scene = bd.Scene.default()
+    dist = bd.DropDistribution(height=("uniform", 0.5, 2.0), spin=("uniform", -3.0, 3.0))
+    numerics = bd.Numerics(n_modes=4)
+    key = jax.random.PRNGKey(5)
+    runs = {
+        "one_device_chunk_1000": dict(batch_size=1000, devices=jax.devices()[:1]),
+        "one_device_chunk_96": dict(batch_size=96, devices=jax.devices()[:1]),
+        "eight_devices_chunk_200": dict(batch_size=200),
+        "eight_devices_chunk_64": dict(batch_size=64),
+    }
+    out = {}
+    for name, kw in runs.items():
+        res = bd.montecarlo(scene, 1000, key, dist, numerics, progress=False, **kw)
+        out[name] = np.asarray(res.peak_stress).tolist()
+    json.dump(out, sys.stdout)
+    """
+)
+
+
+def test_chunks_and_devices_do_not_change_results():
+    env = dict(os.environ)
+    proc = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, env=env, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = {k: np.asarray(v) for k, v in json.loads(proc.stdout).items()}
+    reference = out.pop("one_device_chunk_1000")
+    assert np.all(np.isfinite(reference))
+    for name, values in out.items():
+        np.testing.assert_allclose(values, reference, rtol=1e-12, err_msg=name)
