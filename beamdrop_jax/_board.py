@@ -13,11 +13,12 @@ import math
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ._checks import float_dtype
 from ._scene import Board
 
 
 def mode_numbers(n_modes: int) -> Float[Array, " n"]:
-    return jnp.arange(1, n_modes + 1, dtype=float)
+    return jnp.arange(1, n_modes + 1, dtype=float_dtype())
 
 
 def wavenumbers(board: Board, n_modes: int) -> Float[Array, " n"]:
@@ -68,7 +69,7 @@ def unit_response(t, omega, zeta, duration):
     [0, tau], evaluated in complex exponentials with no division by (w^2 - (pi/tau)^2), so exact resonance
     (w = pi/tau) and tau -> 0 are regular. Zero for t < 0.
     """
-    t = jnp.asarray(t, dtype=float)
+    t = jnp.asarray(t, dtype=float_dtype())
     omega = jnp.asarray(omega)
     zeta = jnp.asarray(zeta)
     tau = jnp.asarray(duration)

@@ -106,3 +106,8 @@ GRAVITY = 9.80665
 """Standard gravity, m/s^2."""
 
 DEG = math.pi / 180.0
+
+
+def float_dtype():
+    """The float dtype JAX uses now: float64 with x64 enabled, float32 otherwise (asks for no truncation)."""
+    return jax.dtypes.canonicalize_dtype(jnp.float64)

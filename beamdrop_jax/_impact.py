@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
+from ._checks import float_dtype
 from ._checks import Flag, flag_if, in_range, combine
 
 
@@ -192,10 +193,10 @@ def routh_impulse(
     """
     if law not in LAWS:
         raise ValueError(f"law = {law!r}; valid laws: {', '.join(LAWS)}")
-    B = jnp.asarray(B, dtype=float)
-    v0 = jnp.asarray(v0, dtype=float)
-    mu = jnp.asarray(friction, dtype=float)
-    e = jnp.asarray(restitution, dtype=float)
+    B = jnp.asarray(B, dtype=float_dtype())
+    v0 = jnp.asarray(v0, dtype=float_dtype())
+    mu = jnp.asarray(friction, dtype=float_dtype())
+    e = jnp.asarray(restitution, dtype=float_dtype())
     separating = v0[1] > 0
     # Separating contacts are computed as if C0 = 0 so every intermediate stays finite; the result is zeroed.
     v0_used = jnp.stack([v0[0], jnp.minimum(v0[1], 0.0)])

@@ -17,9 +17,10 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Bool, Float, Int
 from tqdm.auto import tqdm
 
+from ._checks import float_dtype
 from ._checks import Flag
 from ._scene import Scene
-from ._simulate import Numerics, _scene_peak
+from ._simulate import Numerics, _scene_peaks
 
 _FIELDS = {
     "orientation": "drop.orientation",
@@ -78,9 +79,9 @@ class DropDistribution(eqx.Module):
                 continue
             kind, a, b = spec
             if kind == "uniform":
-                values = jax.random.uniform(k, (n,), minval=a, maxval=b, dtype=float)
+                values = jax.random.uniform(k, (n,), minval=a, maxval=b, dtype=float_dtype())
             else:
-                values = a * jnp.exp(b * jax.random.normal(k, (n,), dtype=float))
+                values = a * jnp.exp(b * jax.random.normal(k, (n,), dtype=float_dtype()))
             out = out.replace(**{path: values})
         return out
 
@@ -158,11 +159,8 @@ class MonteCarloResult(eqx.Module):
 @eqx.filter_jit
 def _evaluate(samples, axes, numerics):
     def one(scene):
-        stress, flags = _scene_peak(scene, numerics, "stress")
-        # Strain and deflection from the same peak search would double the cost; stress/E is the strain at the
-        # stress peak exactly, and the deflection peak is searched separately.
-        deflection, _ = _scene_peak(scene, numerics, "deflection")
-        return stress, stress / scene.board.youngs_modulus, deflection, flags
+        (stress, strain, deflection), flags = _scene_peaks(scene, numerics, ("stress", "strain", "deflection"))
+        return stress, strain, deflection, flags
 
     return jax.vmap(one, in_axes=(axes,))(samples)
 

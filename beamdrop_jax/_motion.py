@@ -12,11 +12,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._checks import float_dtype
 from ._checks import GRAVITY, is_concrete, require
 
 
 def _f(x):
-    return jnp.asarray(x, dtype=float)
+    return jnp.asarray(x, dtype=float_dtype())
 
 
 class Impulse(eqx.Module):

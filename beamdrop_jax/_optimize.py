@@ -16,6 +16,7 @@ import optax
 from jaxtyping import Array, Float, Int
 from tqdm.auto import tqdm
 
+from ._checks import float_dtype
 from ._scene import Placement, Scene
 from ._simulate import Numerics, peak_stress
 
@@ -83,8 +84,8 @@ def risk(values: Float[Array, " n"], objective: str = "mean", alpha: float = 0.9
 
 def drop_set(scene: Scene, orientations, heights=None) -> Scene:
     """A batch of scenes: every orientation (rad) with every height (m; default the scene's)."""
-    th = jnp.asarray(orientations, dtype=float).reshape(-1)
-    hs = jnp.asarray(scene.drop.height if heights is None else heights, dtype=float).reshape(-1)
+    th = jnp.asarray(orientations, dtype=float_dtype()).reshape(-1)
+    hs = jnp.asarray(scene.drop.height if heights is None else heights, dtype=float_dtype()).reshape(-1)
     TH, HS = jnp.meshgrid(th, hs, indexing="ij")
     n = TH.size
     batch = jax.tree_util.tree_map(lambda v: jnp.broadcast_to(v, (n,) + jnp.shape(v)), scene)

@@ -13,6 +13,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
+from ._checks import float_dtype
 
 
 class FieldPeak(eqx.Module):
@@ -31,7 +32,7 @@ def stop_gradient(tree):
 
 
 def mode_shapes(x, length, n_modes: int) -> Float[Array, "... n"]:
-    k = jnp.arange(1, n_modes + 1, dtype=float)
+    k = jnp.arange(1, n_modes + 1, dtype=float_dtype())
     return jnp.sin(jnp.asarray(x)[..., None] * k * math.pi / length)
 
 
@@ -80,7 +81,7 @@ def find_peak(
 
     # The search itself is not differentiated: only the final evaluation at the maximiser is.
     coeffs_c, length_c, modal_c = stop_gradient((coeffs, length, modal))
-    k = jnp.arange(1, coeffs.shape[-1] + 1, dtype=float) * math.pi / length_c
+    k = jnp.arange(1, coeffs.shape[-1] + 1, dtype=float_dtype()) * math.pi / length_c
 
     def value_grad_hess(p, sign):
         # Field derivatives in closed form in x; q, q', q'' from nested forward-mode JVPs in t.

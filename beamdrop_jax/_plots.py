@@ -163,3 +163,28 @@ def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None):
     ax2.grid(True, which="both", alpha=0.3)
     ax2.legend(fontsize=8)
     return fig
+
+
+def plot_bench(rows, *, ax=None):
+    """Log-log chart of max relative error of the peak stress against seconds per drop, Pareto front marked."""
+    from ._bench import pareto_front
+
+    fig, ax = _axes(ax, (8.0, 5.5))
+    floor = 1e-16
+    groups = {}
+    for r in rows:
+        groups.setdefault(r["method"], []).append(r)
+    markers = iter("osD^vP*Xh<>")
+    for method, rs in groups.items():
+        ax.loglog([r["seconds_per_drop"] for r in rs], [max(r["max_error"], floor) for r in rs], next(markers, "o"),
+                  ms=7, alpha=0.8, label=method)
+    front = sorted((rows[i] for i in pareto_front(rows)), key=lambda r: r["seconds_per_drop"])
+    ax.loglog([r["seconds_per_drop"] for r in front], [max(r["max_error"], floor) for r in front], "k-", lw=1,
+              label="Pareto front")
+    ax.axhline(0.01, color="tab:red", ls=":", lw=1, label="1 % error")
+    ax.set_xlabel("seconds per drop (median, batched where possible)")
+    ax.set_ylabel("max relative error of peak stress vs converged reference")
+    ax.set_title("Speed against accuracy on random drops of the default scene")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="best")
+    return fig

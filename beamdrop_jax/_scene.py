@@ -15,11 +15,12 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ._checks import float_dtype
 from ._checks import DEG, Flag, combine, flag_if, in_range, is_concrete, raise_if_flagged, require
 
 
 def _f(x):
-    return jnp.asarray(x, dtype=float)
+    return jnp.asarray(x, dtype=float_dtype())
 
 
 class Housing(eqx.Module):
@@ -236,7 +237,7 @@ class Scene(eqx.Module):
                     s = getattr(s, p)
                 return s
 
-            out = eqx.tree_at(where, out, jnp.asarray(value, dtype=float))
+            out = eqx.tree_at(where, out, jnp.asarray(value, dtype=float_dtype()))
         return out
 
 

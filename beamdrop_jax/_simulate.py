@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ._checks import float_dtype
 from ._board import fundamental_period, modal_velocity_jumps, natural_frequencies, unit_response, wavenumbers
 from ._checks import Flag, combine, flag_if, is_concrete, raise_if_flagged
 from ._impact import LAWS, ImpactResult
@@ -177,7 +178,7 @@ def _mode_counts(board: Board, motion, numerics: Numerics):
 
 def _window(board: Board, motion, numerics: Numerics):
     if numerics.window is not None:
-        return jnp.asarray(numerics.window, dtype=float)
+        return jnp.asarray(numerics.window, dtype=float_dtype())
     end = motion.end_time if isinstance(motion, Record) else motion.as_half_sine().duration
     return end + fundamental_period(board)
 
@@ -334,17 +335,27 @@ QUANTITIES = ("stress", "strain", "deflection")
 
 
 @eqx.filter_jit
-def _scene_peak(scene: Scene, numerics: Numerics, quantity: str):
+def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...]):
+    """Peaks of the requested quantities (stress, strain, deflection) sharing one modal solution and one batched
+    search; returns (values (len(quantities),), flags)."""
     hit = housing_impact(scene, law=numerics.law)
     board = scene.board
     motion = support_motion(scene, support_jumps(scene, hit))
     S = _setup(board, motion, numerics, with_check=False)
     mask = (S.k <= S.used).astype(float)
-    coeffs = (jnp.ones_like(S.curvature) if quantity == "deflection" else S.curvature) * mask
-    peak = jax.tree_util.tree_map(lambda v: v[0], _search(S, board, numerics, coeffs[None]))
-    scale = {"stress": board.youngs_modulus * board.thickness / 2, "strain": board.thickness / 2}.get(quantity, 1.0)
+    kinds = sorted({"deflection" if q == "deflection" else "curvature" for q in quantities})
+    rows = jnp.stack([(jnp.ones_like(S.curvature) if kind == "deflection" else S.curvature) * mask for kind in kinds])
+    peaks = _search(S, board, numerics, rows).value
+    scale = {"stress": board.youngs_modulus * board.thickness / 2, "strain": board.thickness / 2, "deflection": 1.0}
+    values = jnp.stack([scale[q] * peaks[kinds.index("deflection" if q == "deflection" else "curvature")]
+                        for q in quantities])
     flags = combine(scene_flags(scene), hit.flags, board.flags(), flag_if(S.failed, Flag.SOLVER_FAILED))
-    return jnp.where(flags != 0, jnp.nan, scale * peak.value), flags
+    return jnp.where(flags != 0, jnp.nan, values), flags
+
+
+def _scene_peak(scene: Scene, numerics: Numerics, quantity: str):
+    values, flags = _scene_peaks(scene, numerics, (quantity,))
+    return values[0], flags
 
 
 def _peak(scene: Scene, numerics: Numerics | None, quantity: str):

@@ -193,6 +193,19 @@ def cmd_montecarlo(args):
         _save(bd.plot_montecarlo(res, limit=args.allowable_strain, quantity="strain"), _out(args) / "montecarlo.png")
 
 
+def cmd_bench(args):
+    import beamdrop_jax as bd
+    from beamdrop_jax._bench import ratio_at
+
+    level = "tiny" if args.tiny else "quick" if args.quick else "full"
+    print(f"beamdrop bench ({level}): peak-stress error against 32 modes refined (f64), seconds per drop")
+    rows = bd.run_bench(_scene(args), level=level, out=_out(args))
+    for peer in ("peer: numpy", "peer: scipy"):
+        ratio = ratio_at(rows, peer)
+        print(f"  speed ratio at 1 % error against {peer[6:]}: " + (f"{ratio:.1f}x" if ratio else "n/a (no row meets it)"))
+    print(f"wrote {Path(args.out) / 'bench.json'} and {Path(args.out) / 'bench.png'}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="beamdrop", description="Differentiable drop simulation of a board inside a device (SI units)."
@@ -260,6 +273,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=int, help="drops per compiled chunk")
     p.add_argument("--n-modes", type=int, help="modes per drop (default 6)")
     p.set_defaults(func=cmd_montecarlo)
+
+    p = sub.add_parser(
+        "bench",
+        help="speed (seconds per drop) against accuracy (peak-stress error) for every method and two peers; "
+        "JSON table and chart",
+    )
+    common(p)
+    p.add_argument("--quick", action="store_true", help="the quick set (under 5 minutes on 2 cores)")
+    p.add_argument("--tiny", action="store_true", help="a smoke test of every part (seconds)")
+    p.set_defaults(func=cmd_bench)
     return parser
 
 

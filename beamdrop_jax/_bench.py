@@ -1,0 +1,286 @@
+"""Speed against accuracy: every method on the same random drops, timed in the same run, against a converged
+reference, with two peers (a NumPy vectorised closed form and a SciPy `solve_ivp` loop per drop).
+
+Error: relative error of the peak stress against the closed form with 32 modes, refined peak, float64.
+Time: seconds per drop, batched where the method allows, median of repeats after a warm-up run.
+"""
+
+import json
+import math
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._checks import GRAVITY
+from ._montecarlo import DropDistribution, _evaluate, sample_axes
+from ._scene import Scene
+from ._simulate import Numerics
+
+REFERENCE = Numerics(n_modes=32)
+FAST = Numerics(n_modes=4, candidates=1, newton_steps=3, points_per_period=2, x_points_per_mode=2)
+"""Lean settings for Monte-Carlo throughput (about 0.7 % worst-case error on the default scene's drops)."""
+
+
+def _median_time(fn, repeats):
+    fn()  # warm-up (compilation)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def _jax_method(samples, axes, numerics, repeats, f32=False):
+    """Seconds per drop and peak stresses of one compiled, vmapped batch (the same drops for every method)."""
+    n = int(samples.drop.orientation.shape[0])
+
+    def run(batch):
+        stress, _, _, _ = _evaluate(batch, axes, numerics)
+        return np.asarray(jax.block_until_ready(stress), dtype=np.float64)
+
+    if f32:
+        with jax.enable_x64(False):
+            batch = jax.tree_util.tree_map(lambda v: jnp.asarray(np.asarray(v), jnp.float32), samples)
+            seconds = _median_time(lambda: run(batch), repeats)
+            values = run(batch)
+    else:
+        seconds = _median_time(lambda: run(samples), repeats)
+        values = run(samples)
+    return seconds / n, values
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Peer 1: the same closed form, vectorised over drops in NumPy (Poisson impact, half-sine or impulse modes, grid).
+
+
+def numpy_peak_stress(scene: Scene, orientations, n_modes=6, nx=None, nt=None):
+    """Peak stress (Pa) of drops of `scene` at `orientations` (rad), vectorised in NumPy: same physics and grid
+    rule as the JAX closed form, without the Newton refinement (grid maximum)."""
+    f = lambda v: float(np.asarray(v))  # noqa: E731
+    hs, bd_, pl, dr, ct = scene.housing, scene.board, scene.placement, scene.drop, scene.contact
+    W, H, m, k = f(hs.width), f(hs.height), f(hs.mass), f(hs.radius_of_gyration)
+    inertia = m * k * k
+    th = np.asarray(orientations, float)
+    s, c = np.sin(th), np.cos(th)
+    a = np.where(s > 0, -1.0, 1.0) * W / 2
+    b = np.where(c > 0, -1.0, 1.0) * H / 2
+    x = -(a * c - b * s)
+    y = -(a * s + b * c)
+    B1, B2, B3 = 1 / m + y * y / inertia, 1 / m + x * x / inertia, x * y / inertia
+    S0 = f(dr.horizontal_speed) + f(dr.spin) * y
+    C0 = -math.sqrt(2 * GRAVITY * f(dr.height)) - f(dr.spin) * x
+    mu, e = f(ct.friction), f(ct.restitution)
+    sgn = np.where(S0 > 0, 1.0, np.where(S0 < 0, -1.0, -np.where(B3 >= 0, 1.0, -1.0)))
+    slowing = mu * B1 + sgn * B3
+    with np.errstate(divide="ignore", invalid="ignore"):
+        stick = slowing > 0
+        Pn_s = np.where(stick, np.abs(S0) / np.where(stick, slowing, 1.0), np.inf)
+        stays = mu * B1 >= np.abs(B3)
+        dC1 = B2 + sgn * mu * B3
+        dC2 = np.where(stays, (B1 * B2 - B3**2) / B1, B2 - sgn * mu * B3)
+        first = (dC1 > 0) & (~stick | (-C0 <= dC1 * np.where(stick, Pn_s, 0.0)))
+        C_s = C0 + dC1 * np.where(stick, Pn_s, 0.0)
+        Pn_c = np.where(first, -C0 / np.where(first, dC1, 1.0), np.where(stick, Pn_s, 0.0) - C_s / dC2)
+    Pn = (1 + e) * Pn_c
+    dPt2 = np.where(stays, B3 / B1, sgn * mu)
+    Pt = -sgn * mu * np.minimum(Pn, Pn_s) + np.where(stick, dPt2 * np.maximum(Pn - Pn_s, 0.0), 0.0)
+    dvG = np.stack([Pt, Pn], -1) / m
+    dw = (y * Pt - x * Pn) / inertia
+    L, phi = f(bd_.length), f(pl.angle)
+    cen = np.asarray(pl.centre, float)
+    ends = np.stack([cen - L / 2 * np.array([math.cos(phi), math.sin(phi)]),
+                     cen + L / 2 * np.array([math.cos(phi), math.sin(phi)])])
+    e1 = np.stack([c, s], -1)
+    e2 = np.stack([-s, c], -1)
+    t_g = math.cos(phi) * e1 + math.sin(phi) * e2
+    n_g = np.stack([-t_g[:, 1], t_g[:, 0]], -1)
+    jumps = []
+    for q in ends:
+        rq = q[0] * e1 + q[1] * e2
+        dv = dvG + dw[:, None] * np.stack([-rq[:, 1], rq[:, 0]], -1)
+        jumps.append(np.sum(dv * n_g, -1))
+    dvA, dvB = jumps
+    EI = f(bd_.youngs_modulus) * f(bd_.width) * f(bd_.thickness) ** 3 / 12
+    rhoA = f(bd_.density) * f(bd_.width) * f(bd_.thickness)
+    kk = np.arange(1, n_modes + 1)
+    kap = kk * math.pi / L
+    omega = np.sqrt((EI * kap**4 + f(bd_.axial_force) * kap**2) / rhoA)
+    zeta, tau = f(bd_.damping_ratio), f(ct.duration)
+    beta = -(2 / (kk * math.pi)) * (dvA[:, None] - (-1.0) ** kk * dvB[:, None])
+    window = tau + 2 * math.pi / omega[0]
+    nx = nx or 4 * n_modes + 1
+    nt = nt or 4 * (n_modes**2 + 8) + 1
+    t = np.linspace(0, window, nt)
+    wd = omega * math.sqrt(1 - zeta**2)
+    lam = -zeta * omega + 1j * wd
+    tt = t[:, None]
+    if tau > 0:
+        Om = math.pi / tau
+        T = np.minimum(tt, tau)
+        rest = np.exp(lam * (tt - T))
+        elt = np.exp(lam * tt)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            p1 = (rest * np.exp(1j * Om * T) - elt) / (1j * Om - lam)
+            p2 = (rest * np.exp(-1j * Om * T) - elt) / (-1j * Om - lam)
+        R = math.pi / (2 * tau) * np.imag((p1 - p2) / 2j) / wd
+    else:
+        R = np.exp(-zeta * omega * tt) * np.sin(wd * tt) / wd
+    xs = np.linspace(0, L, nx)
+    shapes = np.sin(np.outer(xs, kap)) * -(kap**2)
+    curv = np.einsum("xk,tk,nk->nxt", shapes, R, beta, optimize=True)
+    return f(bd_.youngs_modulus) * f(bd_.thickness) / 2 * np.abs(curv).reshape(len(th), -1).max(-1)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Peer 2: SciPy solve_ivp per drop on the modal equations (as the thesis's MATLAB ode45 script did).
+
+
+def scipy_peak_stress(scene: Scene, jumps, method="RK45", n_modes=6, rtol=1e-8, atol=1e-12, nx=None, nt=None):
+    """Peak stress of one drop from its support jumps (dvA, dvB) by `scipy.integrate.solve_ivp`."""
+    from scipy.integrate import solve_ivp
+
+    f = lambda v: float(np.asarray(v))  # noqa: E731
+    b = scene.board
+    L, E, h = f(b.length), f(b.youngs_modulus), f(b.thickness)
+    EI = E * f(b.width) * h**3 / 12
+    rhoA = f(b.density) * f(b.width) * h
+    kk = np.arange(1, n_modes + 1)
+    kap = kk * math.pi / L
+    w2 = (EI * kap**4 + f(b.axial_force) * kap**2) / rhoA
+    omega = np.sqrt(w2)
+    zeta, tau = f(b.damping_ratio), f(scene.contact.duration)
+    pA, pB = -2 / (kk * math.pi), 2 * (-1.0) ** kk / (kk * math.pi)
+    dvA, dvB = (float(v) for v in jumps)
+    window = tau + 2 * math.pi / omega[0]
+
+    def rhs(t, y):
+        g = math.pi / (2 * tau) * math.sin(math.pi * t / tau) if 0 <= t <= tau else 0.0
+        q, v = y[:n_modes], y[n_modes:]
+        return np.concatenate([v, (pA * dvA + pB * dvB) * g - 2 * zeta * omega * v - w2 * q])
+
+    nx = nx or 4 * n_modes + 1
+    nt = nt or 4 * (n_modes**2 + 8) + 1
+    t_eval = np.linspace(0, window, nt)
+    y0 = np.zeros(2 * n_modes)
+    sol1 = solve_ivp(rhs, (0, tau), y0, method=method, rtol=rtol, atol=atol, dense_output=True)
+    sol2 = solve_ivp(rhs, (tau, window), sol1.y[:, -1], method=method, rtol=rtol, atol=atol, dense_output=True)
+    Q = np.where(t_eval[:, None] <= tau, sol1.sol(np.minimum(t_eval, tau)).T, sol2.sol(np.maximum(t_eval, tau)).T)
+    xs = np.linspace(0, L, nx)
+    curv = (np.sin(np.outer(xs, kap)) * -(kap**2)) @ Q[:, :n_modes].T
+    return E * h / 2 * np.abs(curv).max(), sol1.success and sol2.success
+
+
+LEVELS = ("tiny", "quick", "full")
+
+
+def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drops=None, repeats=None,
+              progress=True) -> list[dict]:
+    """Run the benchmark at `level` ("tiny": a smoke test of every part; "quick": < 5 min on 2 cores; "full");
+    returns rows (method, settings, seconds_per_drop, max_error, median_error, failures, drops) and, with `out`,
+    writes `bench.json` and the chart `bench.png` there."""
+    from ._plots import plot_bench
+
+    if level not in LEVELS:
+        raise ValueError(f"level = {level!r}; valid: {', '.join(LEVELS)}")
+    tiny, quick = level == "tiny", level == "quick"
+    scene = Scene.default() if scene is None else scene
+    n = n_drops or (8 if tiny else 256 if quick else 2048)
+    repeats = repeats or (1 if tiny else 3 if quick else 5)
+    key = jax.random.PRNGKey(2026)
+    drops = DropDistribution().sample(scene, n, key)
+    axes = sample_axes(drops, n)
+    samples = drops.drop.orientation
+    reference = _jax_method(drops, axes, REFERENCE, 1)[1]
+    rows = []
+
+    def add(method, settings, seconds, values):
+        values = np.asarray(values, float)
+        idx = np.arange(values.size)
+        err = np.abs(values / reference[idx] - 1)
+        bad = ~np.isfinite(err)
+        rows.append(dict(method=method, settings=settings, seconds_per_drop=seconds,
+                         max_error=float(np.max(np.where(bad, np.inf, err))),
+                         median_error=float(np.median(err[~bad])) if np.any(~bad) else float("inf"),
+                         failures=int(bad.sum()), drops=int(values.size)))
+        if progress:
+            r = rows[-1]
+            print(f"  {method:<22} {settings:<40} {r['seconds_per_drop'] * 1e6:10.1f} us/drop  "
+                  f"max err {r['max_error']:.2e}", flush=True)
+
+    modes = (2, 4) if tiny else (2, 3, 4, 6, 8) if quick else (2, 3, 4, 6, 8, 12, 16)
+    for m in modes:
+        for refine in (True, False):
+            num = Numerics(n_modes=m, refine=refine)
+            sec, vals = _jax_method(drops, axes, num, repeats)
+            add("closed_form", f"n_modes={m} refine={refine}", sec, vals)
+    sec, vals = _jax_method(drops, axes, FAST, repeats)
+    add("closed_form", "fast: n_modes=4 coarse grid 1 candidate", sec, vals)
+    sec, vals = _jax_method(drops, axes, Numerics(n_modes=6), repeats, f32=True)
+    add("closed_form f32", "n_modes=6 refine=True", sec, vals)
+    sec, vals = _jax_method(drops, axes, FAST, repeats, f32=True)
+    add("closed_form f32", "fast: n_modes=4 coarse grid 1 candidate", sec, vals)
+
+    n_ode = min(n, 4 if tiny else 16 if quick else 64)
+    solvers = ("Tsit5", "Kvaerno5") if tiny else ("Tsit5", "Dopri5", "Dopri8", "Kvaerno5", "ImplicitEuler")
+    tolerances = (1e-4,) if tiny else (1e-4, 1e-6) if quick else (1e-3, 1e-4, 1e-6, 1e-8)
+    for solver in solvers:
+        for rtol in tolerances:
+            if solver == "ImplicitEuler" and rtol < 1e-4:
+                continue  # first order: 1e-6 needs ~1e6 steps per drop
+            num = Numerics(n_modes=6, method="diffrax", solver=solver, rtol=rtol, atol=rtol * 1e-4, max_steps=100000)
+            sub = jax.tree_util.tree_map(lambda v, a: v if a is None else v[:n_ode], drops, axes)
+            sec, vals = _jax_method(sub, axes, num, 1)
+            add("diffrax", f"{solver} rtol={rtol:g} n_modes=6", sec, vals)
+
+    for m in (4, 6):
+        sec = _median_time(lambda: numpy_peak_stress(scene, samples, m), repeats) / n
+        add("peer: numpy closed form", f"n_modes={m} grid max", sec, numpy_peak_stress(scene, samples, m))
+
+    n_scipy = min(n, 2 if tiny else 8 if quick else 32)
+    sub = jax.tree_util.tree_map(lambda v, a: v if a is None else v[:n_scipy], drops, axes)
+    jumps = jax.vmap(_support_jumps, in_axes=(axes,))(sub)
+    for method in ("RK45", "Radau"):
+        t0 = time.perf_counter()
+        vals = [scipy_peak_stress(scene, jumps[i], method)[0] for i in range(n_scipy)]
+        add("peer: scipy solve_ivp", f"{method} rtol=1e-8 n_modes=6", (time.perf_counter() - t0) / n_scipy, vals)
+
+    if out is not None:
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "bench.json").write_text(json.dumps(dict(drops=n, rows=rows), indent=1))
+        plot_bench(rows).savefig(out / "bench.png", dpi=120)
+    return rows
+
+
+def _support_jumps(scene):
+    from ._kinematics import housing_impact, support_jumps
+
+    return support_jumps(scene, housing_impact(scene))
+
+
+def pareto_front(rows) -> list[int]:
+    """Indices of rows that no other row beats in both time and max error."""
+    front = []
+    for i, r in enumerate(rows):
+        dominated = any(
+            (o["seconds_per_drop"] <= r["seconds_per_drop"] and o["max_error"] <= r["max_error"])
+            and (o["seconds_per_drop"] < r["seconds_per_drop"] or o["max_error"] < r["max_error"])
+            for o in rows
+        )
+        if not dominated and math.isfinite(r["max_error"]):
+            front.append(i)
+    return front
+
+
+def ratio_at(rows, peer_prefix: str, tolerance: float = 0.01):
+    """Speed ratio at `tolerance` max error: fastest peer row over fastest beamdrop row that both meet it."""
+    ok = [r for r in rows if r["max_error"] <= tolerance and r["failures"] == 0]
+    ours = [r["seconds_per_drop"] for r in ok if not r["method"].startswith("peer")]
+    peers = [r["seconds_per_drop"] for r in ok if r["method"].startswith(peer_prefix)]
+    if not ours or not peers:
+        return None
+    return min(peers) / min(ours)
