@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._checks import GRAVITY
-from ._montecarlo import DropDistribution, _evaluate, sample_axes
+from ._montecarlo import DropDistribution, _evaluate, montecarlo, sample_axes
 from ._scene import Scene
 from ._simulate import Numerics
 
@@ -194,7 +194,7 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     drops = DropDistribution().sample(scene, n, key)
     axes = sample_axes(drops, n)
     samples = drops.drop.orientation
-    reference = _jax_method(drops, axes, REFERENCE, 1)[1]
+    reference = np.asarray(montecarlo(scene, n, key, numerics=REFERENCE, progress=False).peak_stress)
     rows = []
 
     def add(method, settings, seconds, values):

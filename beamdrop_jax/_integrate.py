@@ -9,6 +9,7 @@ the modes (a Duffing-type hardening).
 
 import diffrax
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -37,6 +38,11 @@ class DiffraxModes(eqx.Module):
     def __call__(self, t) -> Float[Array, " n"]:
         t = jnp.clip(t, self.solution.t0, self.solution.t1)
         return self.solution.evaluate(t)[: self.n_modes]
+
+    def grid_factors(self, t):
+        """(ones, q on the grid): the numerical solution has no separable form."""
+        Q = jax.vmap(self)(t)
+        return jnp.ones(Q.shape[-1], Q.dtype), Q
 
 
 def solve_modes(

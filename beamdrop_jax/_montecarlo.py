@@ -185,8 +185,8 @@ def montecarlo(
     - `key`: a `jax.random.PRNGKey`; the same key gives the same drops and results for any `batch_size` and
       device count.
     - `numerics`: default `Numerics(n_modes=6)`.
-    - `batch_size`: drops per compiled chunk (memory bound); default min(n, 4096), rounded up to a multiple of
-      the device count.
+    - `batch_size`: drops per compiled chunk; default min(n, 4096, 3e7 / grid points), rounded up to a multiple
+      of the device count.
     - `devices`: devices to shard each chunk over (default all local devices).
     """
     if not (isinstance(n, (int, np.integer)) and n >= 1):
@@ -195,7 +195,12 @@ def montecarlo(
     numerics = Numerics(n_modes=6) if numerics is None else numerics
     devices = jax.local_devices() if devices is None else list(devices)
     n_dev = len(devices)
-    batch = min(int(n), 4096) if batch_size is None else int(batch_size)
+    if batch_size is None:
+        # Memory bound: a chunk holds a few (nx, nt) grids per drop; keep it to roughly 1 GB in float64.
+        nx, nt = numerics.grid_shape()
+        batch = max(1, min(int(n), 4096, int(3e7 // (nx * nt))))
+    else:
+        batch = int(batch_size)
     if batch < 1:
         raise ValueError(f"batch_size = {batch_size}; valid: an int >= 1")
     batch = -(-batch // n_dev) * n_dev

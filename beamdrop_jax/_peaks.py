@@ -37,14 +37,19 @@ def mode_shapes(x, length, n_modes: int) -> Float[Array, "... n"]:
 
 
 def field_on_grid(coeffs, Q, x, length) -> Float[Array, "nx nt"]:
-    """Field sum_k coeffs_k Q[t, k] sin(k pi x / L) on the grid x (nx,) by Q (nt, n)."""
-    return (mode_shapes(x, length, Q.shape[-1]) * coeffs) @ Q.T
+    """Field sum_k coeffs_k q_k(t) sin(k pi x / L) on the grid x (nx,) by t (nt,), with the modal coordinates
+    given as factors Q = (scale (n,), R (nt, n)), q_k(t_j) = scale_k R[j, k].
+
+    Keeping the factors apart matters under `vmap`: when only `scale` varies between drops (the board and pulse
+    are shared), R is computed once and the drops fold into one large matrix product."""
+    scale, R = Q
+    return (mode_shapes(x, length, R.shape[-1]) * (coeffs * scale)) @ R.T
 
 
 def find_peak(
     coeffs: Float[Array, " n"],
     modal: Callable,
-    Q: Float[Array, "nt n"],
+    Q: tuple,
     x: Float[Array, " nx"],
     t: Float[Array, " nt"],
     length,
@@ -55,7 +60,7 @@ def find_peak(
     refine: bool = True,
 ) -> FieldPeak:
     """Peak of |field| with `modal(t) -> q (n,)` the modal coordinates (a pytree callable, e.g. an `eqx.Module`)
-    and `Q = vmap(modal)(t)` on the grid."""
+    and `Q = modal.grid_factors(t)` on the grid (see `field_on_grid`)."""
     F = field_on_grid(coeffs, Q, x, length)
     A = jnp.abs(F)
     envelope = A.max(axis=0)

@@ -155,6 +155,10 @@ class ClosedFormModes(eqx.Module):
     def __call__(self, t) -> Float[Array, " n"]:
         return self.beta * unit_response(t, self.omega, self.zeta, self.duration)
 
+    def grid_factors(self, t):
+        """(beta, R) with q_k(t_j) = beta_k R[j, k]: R depends only on the board and the pulse."""
+        return self.beta, jax.vmap(lambda s: unit_response(s, self.omega, self.zeta, self.duration))(t)
+
 
 def support_motion(scene: Scene, jumps) -> HalfSine:
     """The supports' motion in a drop: a half-sine of the contact's duration (an ideal impulse when it is 0)."""
@@ -225,11 +229,11 @@ def _setup(board: Board, motion, numerics: Numerics, with_check: bool) -> _Setup
     window = _window(board, motion, numerics)
     k = jnp.arange(1, M + 1)
     computed = jnp.maximum(used, check) if with_check else used
-    modal, failed = _modal_solution(board, motion, numerics, window, (k <= computed).astype(float))
+    modal, failed = _modal_solution(board, motion, numerics, window, (k <= computed).astype(float_dtype()))
     nx, nt = numerics.grid_shape()
     x = jnp.linspace(0.0, 1.0, nx) * board.length
     t = jnp.linspace(0.0, 1.0, nt) * window
-    Q = jax.vmap(modal)(t)
+    Q = modal.grid_factors(t)
     return _Setup(used, check, window, modal, failed, x, t, Q, k, -(wavenumbers(board, M) ** 2))
 
 
@@ -342,7 +346,7 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...]):
     board = scene.board
     motion = support_motion(scene, support_jumps(scene, hit))
     S = _setup(board, motion, numerics, with_check=False)
-    mask = (S.k <= S.used).astype(float)
+    mask = (S.k <= S.used).astype(float_dtype())
     kinds = sorted({"deflection" if q == "deflection" else "curvature" for q in quantities})
     rows = jnp.stack([(jnp.ones_like(S.curvature) if kind == "deflection" else S.curvature) * mask for kind in kinds])
     peaks = _search(S, board, numerics, rows).value
@@ -414,11 +418,11 @@ def _fields(scene, response, numerics, nx, nt):
     motion = support_motion(scene, response.support_jumps)
     k = jnp.arange(1, M + 1)
     used = response.n_modes
-    modal, _ = _modal_solution(board, motion, numerics, response.window, (k <= used).astype(float))
+    modal, _ = _modal_solution(board, motion, numerics, response.window, (k <= used).astype(float_dtype()))
     x = jnp.linspace(0.0, 1.0, nx) * board.length
     t = jnp.linspace(0.0, 1.0, nt) * response.window
-    Q = jax.vmap(modal)(t)
-    mask = (k <= used).astype(float)
+    Q = modal.grid_factors(t)
+    mask = (k <= used).astype(float_dtype())
     u = field_on_grid(mask, Q, x, board.length)
     curvature = field_on_grid(-(wavenumbers(board, M) ** 2) * mask, Q, x, board.length)
     strain = -board.thickness / 2 * curvature

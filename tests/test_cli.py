@@ -1,0 +1,51 @@
+"""The `beamdrop` command runs each job end to end and writes its files (smoke tests; numbers are tested
+elsewhere)."""
+
+import json
+
+import pytest
+
+from beamdrop_jax.cli import main
+
+
+def test_drop_prints_summary_and_writes_figures(tmp_path, capsys):
+    assert main(["drop", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "68.7" in out and "MPa" in out and "converged" in out
+    for name in ("stress_map.png", "deflection.png", "impact.png"):
+        assert (tmp_path / name).stat().st_size > 10_000
+
+
+def test_impact_and_sensitivity(tmp_path, capsys):
+    assert main(["impact", "--scene", "thesis", "--out", str(tmp_path)]) == 0
+    assert "stick in compression" in capsys.readouterr().out
+    assert main(["sensitivity", "--n-modes", "4", "--no-plots"]) == 0
+    out = capsys.readouterr().out
+    assert "drop.height" in out and "elasticity" in out
+
+
+def test_montecarlo_and_optimize(tmp_path, capsys):
+    assert main(["montecarlo", "-n", "300", "--n-modes", "4", "--out", str(tmp_path)]) == 0
+    assert "Wilson" in capsys.readouterr().out
+    assert (tmp_path / "montecarlo.png").exists()
+    assert main(["optimize", "--orientations", "30,60", "--steps", "3", "--starts", "1", "--n-modes", "4",
+                 "--out", str(tmp_path)]) == 0
+    assert "after: objective" in capsys.readouterr().out
+    assert (tmp_path / "placement.png").exists()
+
+
+def test_bench_tiny_writes_table_and_chart(tmp_path):
+    assert main(["bench", "--tiny", "--out", str(tmp_path)]) == 0
+    table = json.loads((tmp_path / "bench.json").read_text())
+    methods = {r["method"] for r in table["rows"]}
+    assert {"closed_form", "diffrax", "peer: numpy closed form", "peer: scipy solve_ivp"} <= methods
+    for r in table["rows"]:
+        assert r["seconds_per_drop"] > 0 and r["max_error"] >= 0
+    assert (tmp_path / "bench.png").stat().st_size > 10_000
+
+
+def test_bad_scene_is_a_clear_error(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[contact]\nrestitution = 1.5\n")
+    assert main(["drop", "--scene", str(bad), "--no-plots"]) == 2
+    assert "Contact.restitution" in capsys.readouterr().err
