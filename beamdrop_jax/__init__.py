@@ -57,6 +57,7 @@ from ._montecarlo import (
     DropDistribution as DropDistribution,
     MonteCarloResult as MonteCarloResult,
     montecarlo as montecarlo,
+    montecarlo_numerics as montecarlo_numerics,
     wilson_interval as wilson_interval,
 )
 from ._sensitivity import (

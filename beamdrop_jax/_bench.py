@@ -15,13 +15,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._checks import GRAVITY
-from ._montecarlo import DropDistribution, _evaluate, montecarlo, sample_axes
+from ._montecarlo import DropDistribution, _evaluate, montecarlo, montecarlo_numerics, sample_axes
 from ._scene import Scene
 from ._simulate import Numerics
 
 REFERENCE = Numerics(n_modes=32)
-FAST = Numerics(n_modes=4, candidates=1, newton_steps=3, points_per_period=2, x_points_per_mode=2)
-"""Lean settings for Monte-Carlo throughput (about 0.7 % worst-case error on the default scene's drops)."""
 
 
 def _median_time(fn, repeats):
@@ -39,7 +37,7 @@ def _jax_method(samples, axes, numerics, repeats, f32=False):
     n = int(samples.drop.orientation.shape[0])
 
     def run(batch):
-        stress, _, _, _ = _evaluate(batch, axes, numerics)
+        stress, _, _, _ = _evaluate(batch, axes, numerics, True)
         return np.asarray(jax.block_until_ready(stress), dtype=np.float64)
 
     if f32:
@@ -217,12 +215,14 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
             num = Numerics(n_modes=m, refine=refine)
             sec, vals = _jax_method(drops, axes, num, repeats)
             add("closed_form", f"n_modes={m} refine={refine}", sec, vals)
-    sec, vals = _jax_method(drops, axes, FAST, repeats)
-    add("closed_form", "fast: n_modes=4 coarse grid 1 candidate", sec, vals)
+    fast = montecarlo_numerics(scene)
+    label = f"montecarlo default: n_modes={fast.n_modes} coarse"
+    sec, vals = _jax_method(drops, axes, fast, repeats)
+    add("closed_form", label, sec, vals)
     sec, vals = _jax_method(drops, axes, Numerics(n_modes=6), repeats, f32=True)
     add("closed_form f32", "n_modes=6 refine=True", sec, vals)
-    sec, vals = _jax_method(drops, axes, FAST, repeats, f32=True)
-    add("closed_form f32", "fast: n_modes=4 coarse grid 1 candidate", sec, vals)
+    sec, vals = _jax_method(drops, axes, fast, repeats, f32=True)
+    add("closed_form f32", label, sec, vals)
 
     n_ode = min(n, 4 if tiny else 16 if quick else 64)
     solvers = ("Tsit5", "Kvaerno5") if tiny else ("Tsit5", "Dopri5", "Dopri8", "Kvaerno5", "ImplicitEuler")

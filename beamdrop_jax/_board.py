@@ -61,29 +61,21 @@ def _phi(w):
     return out
 
 
-def unit_response(t, omega, zeta, duration):
-    """Modal displacement at time t (s) for a unit modal velocity change delivered as a half-sine of `duration`
-    (s) starting at t = 0, or as an ideal impulse when `duration` = 0. Shapes broadcast over modes.
-
-    Impulse: e^{-zeta w t} sin(w_d t) / w_d. Half-sine: its convolution with pi/(2 tau) sin(pi s / tau) on
-    [0, tau], evaluated in complex exponentials with no division by (w^2 - (pi/tau)^2), so exact resonance
-    (w = pi/tau) and tau -> 0 are regular. Zero for t < 0.
-    """
+def _response_phasor(t, omega, zeta, duration):
+    """Z(t), lambda, omega_d and the pulse's switch, with the unit response q = Im(Z) / omega_d."""
     t = jnp.asarray(t, dtype=float_dtype())
     omega = jnp.asarray(omega)
     zeta = jnp.asarray(zeta)
     tau = jnp.asarray(duration)
     t_pos = jnp.maximum(t, 0.0)
     omega_d = omega * jnp.sqrt(1.0 - zeta**2)
-    decay = zeta * omega
-    impulse = jnp.exp(-decay * t_pos) * jnp.sin(omega_d * t_pos) / omega_d
+    lam = -zeta * omega + 1j * omega_d
+    e_lam_t = jnp.exp(lam * t_pos)
 
     is_pulse = tau > 0
     tau_s = jnp.where(is_pulse, tau, 1.0)
     Omega = math.pi / tau_s
     T = jnp.minimum(t_pos, tau_s)
-    lam = -decay + 1j * omega_d
-    e_lam_t = jnp.exp(lam * t_pos)
     e_rest = jnp.exp(lam * (t_pos - T))  # |.| <= 1: no overflow for heavy damping
 
     def piece(sign):
@@ -96,10 +88,34 @@ def unit_response(t, omega, zeta, duration):
         series = e_lam_t * T * _phi(jnp.where(small, zT, 0j))
         return jnp.where(small, series, direct)
 
-    integral = (piece(1.0) - piece(-1.0)) / 2j
-    pulse = math.pi / (2.0 * tau_s) * jnp.imag(integral) / omega_d
-    out = jnp.where(is_pulse, pulse, impulse)
-    return jnp.where(t >= 0, out, 0.0)
+    pulse = math.pi / (2.0 * tau_s) * (piece(1.0) - piece(-1.0)) / 2j
+    Z = jnp.where(is_pulse, pulse, e_lam_t)
+    return Z, lam, omega_d, (is_pulse, tau_s, Omega, t_pos), t
+
+
+def unit_response(t, omega, zeta, duration):
+    """Modal displacement at time t (s) for a unit modal velocity change delivered as a half-sine of `duration`
+    (s) starting at t = 0, or as an ideal impulse when `duration` = 0. Shapes broadcast over modes.
+
+    Impulse: e^{-zeta w t} sin(w_d t) / w_d. Half-sine: its convolution with pi/(2 tau) sin(pi s / tau) on
+    [0, tau], evaluated in complex exponentials with no division by (w^2 - (pi/tau)^2), so exact resonance
+    (w = pi/tau) and tau -> 0 are regular. Zero for t < 0.
+    """
+    Z, _, omega_d, _, t = _response_phasor(t, omega, zeta, duration)
+    return jnp.where(t >= 0, jnp.imag(Z) / omega_d, 0.0)
+
+
+def unit_response_jet(t, omega, zeta, duration):
+    """(q, q', q'') of `unit_response` at t > 0, from Z' = lam Z + g(t), Z'' = lam Z' + g'(t) with g the pulse
+    shape pi/(2 tau) sin(pi t / tau) on [0, tau] (zero for the impulse): no differentiation through exponentials."""
+    Z, lam, omega_d, (is_pulse, tau_s, Omega, t_pos), t = _response_phasor(t, omega, zeta, duration)
+    during = is_pulse & (t_pos <= tau_s)
+    amp = math.pi / (2.0 * tau_s)
+    g = jnp.where(during, amp * jnp.sin(Omega * t_pos), 0.0)
+    dg = jnp.where(during, amp * Omega * jnp.cos(Omega * t_pos), 0.0)
+    dZ = lam * Z + g
+    ddZ = lam * dZ + dg
+    return jnp.imag(Z) / omega_d, jnp.imag(dZ) / omega_d, jnp.imag(ddZ) / omega_d
 
 
 def fundamental_period(board: Board):

@@ -39,6 +39,15 @@ class DiffraxModes(eqx.Module):
         t = jnp.clip(t, self.solution.t0, self.solution.t1)
         return self.solution.evaluate(t)[: self.n_modes]
 
+    def jet(self, t):
+        """(q, q', q'') at time t from the dense interpolant (forward-mode derivatives in t)."""
+
+        def q_and_rate(s):
+            return jax.jvp(self, (s,), (jnp.ones_like(s),))
+
+        (q, dq), (_, ddq) = jax.jvp(q_and_rate, (t,), (jnp.ones_like(t),))
+        return q, dq, ddq
+
     def grid_factors(self, t):
         """(ones, q on the grid): the numerical solution has no separable form."""
         Q = jax.vmap(self)(t)

@@ -59,17 +59,18 @@ def find_peak(
     newton_steps: int = 6,
     refine: bool = True,
 ) -> FieldPeak:
-    """Peak of |field| with `modal(t) -> q (n,)` the modal coordinates (a pytree callable, e.g. an `eqx.Module`)
+    """Peak of |field| with `modal(t) -> q (n,)` the modal coordinates (a pytree callable with `jet(t) -> (q, q',
+    q'')`, e.g. an `eqx.Module`)
     and `Q = modal.grid_factors(t)` on the grid (see `field_on_grid`)."""
     F = field_on_grid(coeffs, Q, x, length)
     A = jnp.abs(F)
+    # A plain max over x, then arg-maxima only where needed: a full 2-D argmax is a slow variadic reduction.
     envelope = A.max(axis=0)
-    where_x = A.argmax(axis=0)
     if not refine:
         j = envelope.argmax()
         coarse = jnp.max(envelope[::2])
         err = (envelope[j] - coarse) / jnp.maximum(envelope[j], jnp.finfo(A.dtype).tiny)
-        return FieldPeak(envelope[j], x[where_x[j]], t[j], err)
+        return FieldPeak(envelope[j], x[A[:, j].argmax()], t[j], err)
 
     # Candidates: the largest local maxima in time of the spatial envelope (a lone spike at an end counts).
     left = jnp.concatenate([jnp.full((1,), -jnp.inf, A.dtype), envelope[:-1]])
@@ -77,9 +78,10 @@ def find_peak(
     is_local = (envelope >= left) & (envelope >= right)
     k_cand = min(candidates, envelope.shape[0])
     _, idx = jax.lax.top_k(jnp.where(is_local, envelope, -jnp.inf), k_cand)
-    x0 = x[where_x[idx]]
+    where_x = A[:, idx].argmax(axis=0)
+    x0 = x[where_x]
     t0 = t[idx]
-    sign0 = jnp.sign(F[where_x[idx], idx])
+    sign0 = jnp.sign(F[where_x, idx])
     cell = jnp.stack([x[1] - x[0], t[1] - t[0]])
     lo = jnp.stack([jnp.zeros_like(length), jnp.zeros_like(window)])
     hi = jnp.stack([length, window])
@@ -89,11 +91,8 @@ def find_peak(
     k = jnp.arange(1, coeffs.shape[-1] + 1, dtype=float_dtype()) * math.pi / length_c
 
     def value_grad_hess(p, sign):
-        # Field derivatives in closed form in x; q, q', q'' from nested forward-mode JVPs in t.
-        def q_and_rate(s):
-            return jax.jvp(modal_c, (s,), (jnp.ones_like(s),))
-
-        (q, dq), (_, ddq) = jax.jvp(q_and_rate, (p[1],), (jnp.ones_like(p[1]),))
+        # Field derivatives in closed form in x; q, q', q'' from the modal solution's own jet in t.
+        q, dq, ddq = modal_c.jet(p[1])
         sn, cs = jnp.sin(k * p[0]), jnp.cos(k * p[0])
         c = sign * coeffs_c
         f = jnp.sum(c * q * sn)

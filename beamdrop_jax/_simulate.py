@@ -4,6 +4,7 @@
 -> modal response (closed form or diffrax) -> peaks and a convergence check.
 """
 
+import dataclasses
 import math
 from typing import NamedTuple
 
@@ -13,7 +14,14 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ._checks import float_dtype
-from ._board import fundamental_period, modal_velocity_jumps, natural_frequencies, unit_response, wavenumbers
+from ._board import (
+    fundamental_period,
+    modal_velocity_jumps,
+    natural_frequencies,
+    unit_response,
+    unit_response_jet,
+    wavenumbers,
+)
 from ._checks import Flag, combine, flag_if, is_concrete, raise_if_flagged
 from ._impact import LAWS, ImpactResult
 from ._integrate import SOLVERS, solve_modes
@@ -154,6 +162,10 @@ class ClosedFormModes(eqx.Module):
 
     def __call__(self, t) -> Float[Array, " n"]:
         return self.beta * unit_response(t, self.omega, self.zeta, self.duration)
+
+    def jet(self, t):
+        """(q, q', q'') at time t, each (n,)."""
+        return tuple(self.beta * r for r in unit_response_jet(t, self.omega, self.zeta, self.duration))
 
     def grid_factors(self, t):
         """(beta, R) with q_k(t_j) = beta_k R[j, k]: R depends only on the board and the pulse."""
@@ -339,17 +351,25 @@ QUANTITIES = ("stress", "strain", "deflection")
 
 
 @eqx.filter_jit
-def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...]):
+def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], grid_deflection: bool = False):
     """Peaks of the requested quantities (stress, strain, deflection) sharing one modal solution and one batched
-    search; returns (values (len(quantities),), flags)."""
+    search; returns (values (len(quantities),), flags). `grid_deflection` takes the deflection peak from the grid
+    without refinement (Monte-Carlo's cheap option; it undershoots by the grid's resolution)."""
     hit = housing_impact(scene, law=numerics.law)
     board = scene.board
     motion = support_motion(scene, support_jumps(scene, hit))
     S = _setup(board, motion, numerics, with_check=False)
     mask = (S.k <= S.used).astype(float_dtype())
     kinds = sorted({"deflection" if q == "deflection" else "curvature" for q in quantities})
-    rows = jnp.stack([(jnp.ones_like(S.curvature) if kind == "deflection" else S.curvature) * mask for kind in kinds])
-    peaks = _search(S, board, numerics, rows).value
+    if grid_deflection and numerics.refine and "deflection" in kinds:
+        coarse = dataclasses.replace(numerics, refine=False)
+        fine_kinds = [k for k in kinds if k != "deflection"]
+        deflection = _search(S, board, coarse, mask[None]).value
+        found = _search(S, board, numerics, (S.curvature * mask)[None]).value if fine_kinds else jnp.zeros((0,))
+        peaks = jnp.concatenate([deflection, found]) if kinds[0] == "deflection" else jnp.concatenate([found, deflection])
+    else:
+        rows = jnp.stack([(jnp.ones_like(S.curvature) if k == "deflection" else S.curvature) * mask for k in kinds])
+        peaks = _search(S, board, numerics, rows).value
     scale = {"stress": board.youngs_modulus * board.thickness / 2, "strain": board.thickness / 2, "deflection": 1.0}
     values = jnp.stack([scale[q] * peaks[kinds.index("deflection" if q == "deflection" else "curvature")]
                         for q in quantities])

@@ -16,17 +16,21 @@ import beamdrop_jax as bd
 NUMERICS = bd.Numerics(n_modes=6)
 
 
-@pytest.fixture(scope="module")
-def result():
-    dist = bd.DropDistribution(
+def result_distribution():
+    return bd.DropDistribution(
         height=("lognormal", 1.2, 0.3),
         friction=("uniform", 0.1, 0.8),
         restitution=("uniform", 0.2, 0.8),
         spin=("uniform", -5.0, 5.0),
         duration=("uniform", 2e-4, 8e-4),
     )
+
+
+@pytest.fixture(scope="module")
+def result():
+    dist = result_distribution()
     return bd.montecarlo(bd.Scene.default(), 600, jax.random.PRNGKey(3), dist, NUMERICS, batch_size=256,
-                         progress=False)
+                         progress=False, refine_deflection=True)
 
 
 def test_batched_equals_one_by_one(result):
@@ -37,6 +41,14 @@ def test_batched_equals_one_by_one(result):
         np.testing.assert_allclose(result.peak_stress[i], res.peak.stress, rtol=1e-10)
         np.testing.assert_allclose(result.peak_strain[i], res.peak.strain, rtol=1e-10)
         np.testing.assert_allclose(result.peak_deflection[i], res.peak.deflection, rtol=1e-10)
+
+
+def test_grid_deflection_is_a_close_lower_bound(result):
+    fast = bd.montecarlo(bd.Scene.default(), 600, jax.random.PRNGKey(3), result_distribution(), NUMERICS,
+                         batch_size=256, progress=False)
+    np.testing.assert_allclose(fast.peak_stress, result.peak_stress, rtol=1e-12)
+    ratio = np.asarray(fast.peak_deflection) / np.asarray(result.peak_deflection)
+    assert np.all(ratio <= 1 + 1e-12) and np.all(ratio > 0.98)
 
 
 def test_samples_follow_the_distribution(result):
