@@ -66,13 +66,14 @@ from ._sensitivity import (
     sensitivities as sensitivities,
     smooth_peak_stress as smooth_peak_stress,
 )
-from ._bench import numpy_peak_stress as numpy_peak_stress, run_bench as run_bench
+from ._bench import numpy_peak_stress as numpy_peak_stress, run_bench as run_bench, stability_study as stability_study
 from ._plots import (
     plot_deflected_board as plot_deflected_board,
     plot_bench as plot_bench,
     plot_impact as plot_impact,
     plot_montecarlo as plot_montecarlo,
     plot_placement as plot_placement,
+    plot_stability as plot_stability,
     plot_stress_map as plot_stress_map,
 )
 __version__ = "0.1.0"

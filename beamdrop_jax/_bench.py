@@ -226,7 +226,7 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
 
     n_ode = min(n, 4 if tiny else 16 if quick else 64)
     solvers = ("Tsit5", "Kvaerno5") if tiny else ("Tsit5", "Dopri5", "Dopri8", "Kvaerno5", "ImplicitEuler")
-    tolerances = (1e-4,) if tiny else (1e-4, 1e-6) if quick else (1e-3, 1e-4, 1e-6, 1e-8)
+    tolerances = (1e-4,) if tiny else (1e-6,) if quick else (1e-3, 1e-4, 1e-6, 1e-8)
     for solver in solvers:
         for rtol in tolerances:
             if solver == "ImplicitEuler" and rtol < 1e-4:
@@ -248,11 +248,15 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
         vals = [scipy_peak_stress(scene, jumps[i], method)[0] for i in range(n_scipy)]
         add("peer: scipy solve_ivp", f"{method} rtol=1e-8 n_modes=6", (time.perf_counter() - t0) / n_scipy, vals)
 
+    study = stability_study(level, progress=progress)
     if out is not None:
+        from ._plots import plot_stability
+
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        (out / "bench.json").write_text(json.dumps(dict(drops=n, rows=rows), indent=1))
+        (out / "bench.json").write_text(json.dumps(dict(drops=n, rows=rows, stability=study), indent=1))
         plot_bench(rows).savefig(out / "bench.png", dpi=120)
+        plot_stability(study).savefig(out / "stability.png", dpi=120)
     return rows
 
 
@@ -284,3 +288,104 @@ def ratio_at(rows, peer_prefix: str, tolerance: float = 0.01):
     if not ours or not peers:
         return None
     return min(peers) / min(ours)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Where methods fail: measured, not assumed.
+
+
+def stability_study(level: str = "quick", progress=True) -> dict:
+    """Measurements behind the stability map (returns a JSON-able dict; `plot_stability` draws it):
+
+    - `stiffness`: diffrax steps and seconds per solve against the mode count, explicit vs implicit (rtol 1e-6);
+    - `tolerance`: peak-stress error against rtol for each solver (6 modes, one drop), float64 and float32;
+    - `modes`: peak stress against mode count for the ideal impulse and half-sines of several durations;
+    - `buckling`: first frequency and peak stress as the axial compression approaches the Euler load.
+    """
+    from ._board import natural_frequencies
+    from ._integrate import solve_modes
+    from ._motion import HalfSine
+    from ._scene import Board
+    from ._simulate import board_response
+
+    tiny = level == "tiny"
+    board = Board()
+    motion = HalfSine(3.0, 1.0, 5e-4)
+    out = {}
+
+    def say(msg):
+        if progress:
+            print("  " + msg, flush=True)
+
+    # Stiffness: the top mode's frequency grows like k^2.
+    counts = (4, 8) if tiny else (4, 8, 16) if level == "quick" else (4, 8, 16, 32)
+    solvers = ("Tsit5", "Kvaerno5") if tiny else ("Tsit5", "Dopri8", "Kvaerno5", "ImplicitEuler")
+    rows = []
+    for solver in solvers:
+        for m in counts:
+            window = jnp.asarray(5e-4 + 2 * math.pi / float(natural_frequencies(board, 1)[0]))
+            rtol = 1e-3 if solver == "ImplicitEuler" else 1e-6
+
+            @jax.jit
+            def solve(board, rtol=rtol, m=m, solver=solver):
+                modes, failed = solve_modes(board, motion, m, window, jnp.ones(m), solver=solver, rtol=rtol,
+                                            atol=rtol * 1e-6, max_steps=20000)
+                return modes.solution.stats["num_steps"], failed
+
+            jax.block_until_ready(solve(board))
+            t0 = time.perf_counter()
+            steps, failed = jax.block_until_ready(solve(board))
+            sec = time.perf_counter() - t0
+            top = float(natural_frequencies(board, m)[-1])
+            rows.append(dict(solver=solver, rtol=rtol, n_modes=m, top_frequency_hz=top / (2 * math.pi),
+                             steps=int(steps), seconds=sec, failed=bool(failed)))
+            say(f"stiffness {solver:<13} {m:3d} modes: {int(steps):6d} steps {sec * 1e3:8.1f} ms "
+                f"{'FAILED (max_steps)' if bool(failed) else ''}")
+    out["stiffness"] = rows
+
+    # Tolerance: error of the peak against the closed form, per solver, f64 and f32.
+    exact = float(board_response(board, motion, Numerics(n_modes=6)).peak.stress)
+    tolerances = (1e-3, 1e-6) if tiny else (1e-2, 1e-4, 1e-6, 1e-8) if level == "quick" else (
+        1e-2, 1e-3, 1e-4, 1e-6, 1e-8, 1e-10)
+    rows = []
+    for solver in ("Tsit5", "Kvaerno5") if tiny else ("Tsit5", "Dopri8", "Kvaerno5", "ImplicitEuler"):
+        for rtol in tolerances:
+            if solver == "ImplicitEuler" and rtol < 1e-4:
+                continue
+            for f32 in (False, True):
+                num = Numerics(n_modes=6, method="diffrax", solver=solver, rtol=rtol, atol=rtol * 1e-6,
+                               max_steps=50000)
+                if f32:
+                    with jax.enable_x64(False):
+                        res = board_response(Board(), HalfSine(3.0, 1.0, 5e-4), num)
+                        value, flags = float(res.peak.stress), int(res.flags)
+                else:
+                    res = board_response(board, motion, num)
+                    value, flags = float(res.peak.stress), int(res.flags)
+                err = abs(value / exact - 1) if math.isfinite(value) else float("inf")
+                rows.append(dict(solver=solver, rtol=rtol, float32=f32, error=err, flags=flags))
+                say(f"tolerance {solver:<13} rtol {rtol:7.0e} {'f32' if f32 else 'f64'}: error {err:.2e}"
+                    f"{' flags ' + str(flags) if flags else ''}")
+    out["tolerance"] = rows
+
+    # Modes: ideal impulse against half-sines.
+    counts = (2, 4, 8, 16) if tiny else (1, 2, 4, 8, 16, 32) if level == "quick" else (1, 2, 4, 8, 16, 32, 64)
+    rows = []
+    for tau in (0.0, 5e-5, 1e-4, 5e-4, 1e-3):
+        for m in counts:
+            value = float(board_response(board, HalfSine(3.0, 1.0, tau), Numerics(n_modes=m)).peak.stress)
+            rows.append(dict(duration=tau, n_modes=m, stress=value))
+        say(f"modes tau = {tau * 1e3:.2f} ms: " + ", ".join(f"{r['stress'] / 1e6:.1f}" for r in rows[-len(counts):]))
+    out["modes"] = rows
+
+    # Buckling: compression towards the Euler load.
+    rows = []
+    for ratio in ((0.0, 0.9) if tiny else (0.0, 0.5, 0.9, 0.99, 0.999)):
+        b = Board(axial_force=-ratio * float(board.buckling_force))
+        res = board_response(b, motion, Numerics(n_modes=6))
+        rows.append(dict(load_ratio=ratio, f1_hz=float(res.frequencies[0]), stress=float(res.peak.stress),
+                         window=float(res.window), search_error=float(res.peak.search_error)))
+        say(f"buckling N/Ncr = {ratio}: f1 {rows[-1]['f1_hz']:.1f} Hz, peak {rows[-1]['stress'] / 1e6:.1f} MPa, "
+            f"window {rows[-1]['window'] * 1e3:.1f} ms")
+    out["buckling"] = rows
+    return out

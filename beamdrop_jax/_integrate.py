@@ -81,6 +81,7 @@ def solve_modes(
         v0 = jnp.zeros(n_modes)
         accel = motion.acceleration
         jumps = motion.t
+        dtmax = None
     else:
         pulse: HalfSine = motion.as_half_sine()
         is_pulse = pulse.duration > 0
@@ -88,6 +89,9 @@ def solve_modes(
         accel = pulse.acceleration
         # The pulse's end is a kink in the forcing: step onto it exactly (DESIGN: declare it as a jump time).
         jumps = jnp.where(is_pulse, pulse.duration, window)[None]
+        # A pulse starts at zero force from rest: the initial step-size guess sees no motion and a low-order
+        # solver's error estimate can step over the whole pulse (ImplicitEuler did, returning ~0). Cap the step.
+        dtmax = jnp.where(is_pulse, pulse.duration / 8, window)
 
     def rhs(t, y, args):
         q, v = y[:n_modes], y[n_modes:]
@@ -102,7 +106,8 @@ def solve_modes(
     if solver not in SOLVERS:
         raise ValueError(f"Numerics.solver = {solver!r}; valid solvers: {', '.join(SOLVERS)}")
     y0 = jnp.concatenate([jnp.zeros(n_modes), v0])
-    controller = diffrax.ClipStepSizeController(diffrax.PIDController(rtol=rtol, atol=atol), jump_ts=jumps)
+    pid = diffrax.PIDController(rtol=rtol, atol=atol, dtmax=dtmax)
+    controller = diffrax.ClipStepSizeController(pid, jump_ts=jumps)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(rhs),
         SOLVERS[solver](),

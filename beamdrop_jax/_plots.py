@@ -188,3 +188,59 @@ def plot_bench(rows, *, ax=None):
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, loc="best")
     return fig
+
+
+def plot_stability(study: dict):
+    """The stability map: four panels from `stability_study`."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 2, figsize=(12, 9), layout="constrained")
+    ax = axes[0, 0]
+    for solver in sorted({r["solver"] for r in study["stiffness"]}):
+        rs = [r for r in study["stiffness"] if r["solver"] == solver]
+        ax.loglog([r["top_frequency_hz"] for r in rs], [r["steps"] for r in rs], "o-",
+                  label=f"{solver} (rtol {rs[0]['rtol']:g})")
+        for r in rs:
+            if r["failed"]:
+                ax.plot(r["top_frequency_hz"], r["steps"], "rx", ms=12)
+    ax.set_xlabel("frequency of the highest mode kept (Hz)")
+    ax.set_ylabel("solver steps over the window")
+    ax.set_title("Stiffness: explicit steps grow with the top mode (x = max_steps hit)")
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+
+    ax = axes[0, 1]
+    for solver in sorted({r["solver"] for r in study["tolerance"]}):
+        for f32, style in ((False, "o-"), (True, "s--")):
+            rs = [r for r in study["tolerance"] if r["solver"] == solver and r["float32"] == f32]
+            if rs:
+                ax.loglog([r["rtol"] for r in rs], [max(r["error"], 1e-16) if np.isfinite(r["error"]) else 1.0
+                                                    for r in rs], style, label=f"{solver} {'f32' if f32 else 'f64'}")
+    ax.set_xlabel("diffrax rtol")
+    ax.set_ylabel("peak-stress error against the closed form (1 = failed, flagged)")
+    ax.set_title("Tolerance: error floors (float32 near 1e-6) and first-order damping")
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(True, which="both", alpha=0.3)
+
+    ax = axes[1, 0]
+    for tau in sorted({r["duration"] for r in study["modes"]}):
+        rs = [r for r in study["modes"] if r["duration"] == tau]
+        label = "ideal impulse" if tau == 0 else f"half-sine {tau * 1e3:g} ms"
+        ax.semilogx([r["n_modes"] for r in rs], [r["stress"] / 1e6 for r in rs], "o-", label=label)
+    ax.set_xlabel("modes")
+    ax.set_ylabel("peak stress (MPa)")
+    ax.set_title("Ideal impulse never converges; real pulses (0.05-1 ms) do")
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+
+    ax = axes[1, 1]
+    rs = study["buckling"]
+    ax.plot([r["load_ratio"] for r in rs], [r["f1_hz"] for r in rs], "o-", color="tab:blue", label="f1 (Hz)")
+    ax.set_xlabel("axial compression / Euler load")
+    ax.set_ylabel("first frequency (Hz)", color="tab:blue")
+    ax2 = ax.twinx()
+    ax2.plot([r["load_ratio"] for r in rs], [r["stress"] / 1e6 for r in rs], "s--", color="tab:red")
+    ax2.set_ylabel("peak stress (MPa)", color="tab:red")
+    ax.set_title("Approaching buckling: f1 -> 0, window and peak grow")
+    ax.grid(True, alpha=0.3)
+    return fig

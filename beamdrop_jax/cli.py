@@ -271,7 +271,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--allowable-strain", type=float, default=2000e-6, help="strain limit (default 2000e-6)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--batch-size", type=int, help="drops per compiled chunk")
-    p.add_argument("--n-modes", type=int, help="modes per drop (default 6)")
+    p.add_argument("--n-modes", type=int, help="modes per drop (default: chosen from the scene, f_k tau >= 1)")
     p.set_defaults(func=cmd_montecarlo)
 
     p = sub.add_parser(
