@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Bool, Float, Int
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from ._checks import float_dtype
 from ._checks import Flag
