@@ -21,13 +21,19 @@ from ._kinematics import (
     approach_velocity as approach_velocity,
     body_axes as body_axes,
     contact_matrix as contact_matrix,
+    corner_impact as corner_impact,
     housing_impact as housing_impact,
     lowest_corner as lowest_corner,
     support_jumps as support_jumps,
 )
-
-
-from ._motion import HalfSine as HalfSine, Impulse as Impulse, Record as Record
+from ._clatter import (
+    Ending as Ending,
+    Impacts as Impacts,
+    corner_heights as corner_heights,
+    impact_sequence as impact_sequence,
+    next_contact as next_contact,
+)
+from ._motion import HalfSine as HalfSine, Impulse as Impulse, PulseTrain as PulseTrain, Record as Record
 from ._motion import JESD22_B111_CONDITION_B as JESD22_B111_CONDITION_B
 from ._board import natural_frequencies as natural_frequencies, unit_response as unit_response
 from ._peaks import FieldPeak as FieldPeak
@@ -37,6 +43,7 @@ from ._simulate import (
     Peak as Peak,
     Response as Response,
     board_response as board_response,
+    drop_motion as drop_motion,
     peak_deflection as peak_deflection,
     peak_strain as peak_strain,
     peak_stress as peak_stress,

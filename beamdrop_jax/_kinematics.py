@@ -30,15 +30,18 @@ def lowest_corner(scene: Scene) -> tuple[Float[Array, "2"], Float[Array, "2"], A
     **Returns:** `(corner, r, flat)`: the corner's body coordinates (q1, q2) from G (m), r = G - S in the ground
     frame (m, r[1] > 0), and whether two corners are equally low (a flat landing on a face).
     """
-    th = scene.drop.orientation
-    W, H = scene.housing.width, scene.housing.height
+    return lowest_corner_at(scene.drop.orientation, scene.housing.width, scene.housing.height)
+
+
+def lowest_corner_at(orientation, width, height):
+    """`lowest_corner` for a housing of `width` x `height` at any `orientation` (rad)."""
+    th = orientation
     s, c = jnp.sin(th), jnp.cos(th)
     # The corner +-W/2 e1 +-H/2 e2 lies lowest when each sign opposes the y-component of its axis.
     a = jnp.where(s > 0, -1.0, 1.0)
     b = jnp.where(c > 0, -1.0, 1.0)
-    corner = jnp.stack([a * W / 2, b * H / 2])
-    axes = body_axes(th)
-    r = -(corner @ axes)
+    corner = jnp.stack([a * width / 2, b * height / 2])
+    r = -(corner @ body_axes(th))
     tol = _flat_tolerance(th)
     flat = (jnp.abs(s) < tol) | (jnp.abs(c) < tol)
     return corner, r, flat
@@ -90,7 +93,7 @@ class HousingImpact(eqx.Module):
 
 
 def housing_impact(scene: Scene, law: str = "poisson") -> HousingImpact:
-    """Corner impact of the housing: lowest corner, Routh impulse, jumps of v_G and spin.
+    """Corner impact of the dropped housing: lowest corner, Routh impulse, jumps of v_G and spin.
 
     A flat landing (two corners equally low) with no spin and no horizontal speed has the exact answer that the
     housing translates: every point gains (1 + e) times the approach speed upwards and friction plays no part
@@ -98,15 +101,27 @@ def housing_impact(scene: Scene, law: str = "poisson") -> HousingImpact:
     single-contact law: `Flag.FLAT_LANDING_WITH_MOTION`. A separating contact (C0 >= 0, e.g. a zero drop height)
     gets `Flag.SEPARATING_CONTACT`.
     """
-    h = scene.housing
-    corner, r, flat = lowest_corner(scene)
+    d = scene.drop
+    velocity = jnp.stack([d.horizontal_speed, -jnp.sqrt(2.0 * GRAVITY * jnp.maximum(d.height, 0.0))])
+    hit = corner_impact(scene.housing, scene.contact, d.orientation, velocity, d.spin, law=law)
+    moving = (d.spin != 0) | (d.horizontal_speed != 0)
+    _raise_outside_law(scene, hit.flat & moving, ~(hit.v0[1] < 0), hit.v0)
+    return hit
+
+
+def corner_impact(housing, contact, orientation, velocity, spin, law: str = "poisson") -> HousingImpact:
+    """Impact of the lowest corner of `housing` at `orientation` (rad), its centre of mass moving at `velocity`
+    (vx, vy) (m/s) and spinning at `spin` (rad/s) just before; `housing_impact` for any state (a clattering
+    drop's later impacts). Flags as in `housing_impact`."""
+    h = housing
+    corner, r, flat = lowest_corner_at(orientation, h.width, h.height)
     B = contact_matrix(r, h.mass, h.inertia)
-    v0 = approach_velocity(scene, r)
-    imp = routh_impulse(B, v0, scene.contact.friction, scene.contact.restitution, law=law)
+    v0 = velocity + spin * jnp.stack([r[1], -r[0]])
+    imp = routh_impulse(B, v0, contact.friction, contact.restitution, law=law)
     dv_G = imp.P / h.mass
     dw = (r[1] * imp.P[0] - r[0] * imp.P[1]) / h.inertia
 
-    e = scene.contact.restitution
+    e = contact.restitution
     flat_P = jnp.stack([jnp.zeros_like(v0[1]), -(1.0 + e) * h.mass * v0[1]])
     flat_impact = ImpactResult(
         P=flat_P,
@@ -118,17 +133,15 @@ def housing_impact(scene: Scene, law: str = "poisson") -> HousingImpact:
         path=jnp.stack([jnp.zeros(2, dtype=flat_P.dtype), flat_P / 2, flat_P]),
         flags=imp.flags,
     )
-    moving = (scene.drop.spin != 0) | (scene.drop.horizontal_speed != 0)
+    moving = (spin != 0) | (velocity[0] != 0)
     impact = jnp_tree_where(flat, flat_impact, imp)
     dv_G = jnp.where(flat, flat_P / h.mass, dv_G)
     dw = jnp.where(flat, 0.0, dw)
-    separating = ~(v0[1] < 0)
     flags = combine(
         impact.flags,
         flag_if(flat & moving, Flag.FLAT_LANDING_WITH_MOTION),
-        flag_if(separating, Flag.SEPARATING_CONTACT),
+        flag_if(~(v0[1] < 0), Flag.SEPARATING_CONTACT),
     )
-    _raise_outside_law(scene, flat & moving, separating, v0)
     return HousingImpact(impact, corner, r, B, v0, dv_G, dw, flat, flags)
 
 
@@ -156,11 +169,13 @@ def jnp_tree_where(cond, a, b):
     return jax.tree_util.tree_map(lambda x, y: jnp.where(cond, x, y), a, b)
 
 
-def support_jumps(scene: Scene, hit: HousingImpact) -> Float[Array, "2"]:
-    """Normal velocity jumps (dvA, dvB) of the board's ends, m/s, positive along the board normal n = z x t."""
+def support_jumps(scene: Scene, hit: HousingImpact, orientation=None) -> Float[Array, "2"]:
+    """Normal velocity jumps (dvA, dvB) of the board's ends, m/s, positive along the board normal n = z x t, for
+    the housing at `orientation` (default: the drop's) when `hit` strikes."""
+    orientation = scene.drop.orientation if orientation is None else orientation
     ends = board_ends(scene.placement, scene.board.length)
-    dv = hit.point_velocity_jump(scene.drop.orientation, ends)
-    axes = body_axes(scene.drop.orientation)
+    dv = hit.point_velocity_jump(orientation, ends)
+    axes = body_axes(orientation)
     phi = scene.placement.angle
     t = jnp.cos(phi) * axes[0] + jnp.sin(phi) * axes[1]
     n = jnp.stack([-t[1], t[0]])

@@ -83,6 +83,46 @@ class HalfSine(eqx.Module):
         return self.duration
 
 
+class PulseTrain(eqx.Module):
+    """Half-sine pulses of one `duration` starting at `times` (K,) (s, non-decreasing), pulse i changing the
+    supports' normal velocities by `dvA[i]`, `dvB[i]` (m/s): the supports' motion in a clattering drop. The board
+    is linear, so its response is the sum of each pulse's response shifted to its time. Closed form only."""
+
+    times: Float[Array, " K"]
+    dvA: Float[Array, " K"]
+    dvB: Float[Array, " K"]
+    duration: Float[Array, ""]
+
+    def __init__(self, times, dvA, dvB, duration):
+        self.times = jnp.atleast_1d(_f(times))
+        self.dvA = jnp.atleast_1d(_f(dvA))
+        self.dvB = jnp.atleast_1d(_f(dvB))
+        self.duration = _f(duration)
+
+    def __check_init__(self):
+        if is_concrete(self.times, self.dvA, self.dvB):
+            if not (np.shape(self.times) == np.shape(self.dvA) == np.shape(self.dvB)):
+                raise ValueError(
+                    f"PulseTrain.times, dvA and dvB need one shape, got {np.shape(self.times)}, "
+                    f"{np.shape(self.dvA)}, {np.shape(self.dvB)}"
+                )
+            require(self.times, "PulseTrain.times", 0.0, unit="s")
+            if np.any(np.diff(np.asarray(self.times)) < 0):
+                raise ValueError("PulseTrain.times must be non-decreasing")
+        require(self.dvA, "PulseTrain.dvA", unit="m/s")
+        require(self.dvB, "PulseTrain.dvB", unit="m/s")
+        require(self.duration, "PulseTrain.duration", 0.0, unit="s")
+
+    def acceleration(self, t) -> Float[Array, "2"]:
+        """(aA, aB) at time t, m/s^2."""
+        shape = HalfSine(1.0, 1.0, self.duration).acceleration(t - self.times)[0]
+        return jnp.stack([jnp.sum(self.dvA * shape), jnp.sum(self.dvB * shape)])
+
+    @property
+    def end_time(self):
+        return self.times[-1] + self.duration
+
+
 JESD22_B111_CONDITION_B = (1500.0 * GRAVITY, 0.5e-3)
 """(peak acceleration m/s^2, duration s) of JESD22-B111 service condition B."""
 

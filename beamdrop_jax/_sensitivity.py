@@ -7,8 +7,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._scene import Scene
-from ._simulate import Numerics, _setup, peak_deflection, peak_strain, peak_stress, support_motion
-from ._kinematics import housing_impact, support_jumps
+from ._simulate import Numerics, _setup, drop_motion, peak_deflection, peak_strain, peak_stress
 from ._peaks import field_on_grid
 
 _PEAKS = {"stress": peak_stress, "strain": peak_strain, "deflection": peak_deflection}
@@ -73,7 +72,7 @@ def smooth_peak_stress(scene: Scene, numerics: Numerics | None = None, temperatu
 @eqx.filter_jit
 def _smooth(scene, numerics, temperature):
     board = scene.board
-    motion = support_motion(scene, support_jumps(scene, housing_impact(scene, law=numerics.law)))
+    motion = drop_motion(scene, numerics)[0]
     S = _setup(board, motion, numerics, with_check=False)
     stress = jnp.abs(field_on_grid(S.curvature * (S.k <= S.used), S.Q, S.x, board.length))
     stress = board.youngs_modulus * board.thickness / 2 * stress

@@ -1,7 +1,8 @@
 """From a scene (or a board and its support motion) to peak stress, strain and deflection.
 
-`simulate` validates eagerly, then runs one compiled function: housing impact -> support jumps -> support motion
--> modal response (closed form or diffrax) -> peaks and a convergence check.
+`simulate` validates eagerly, then runs one compiled function: housing impact (and, with `max_impacts` > 1, the
+clattering impacts that follow) -> support jumps -> support motion -> modal response (closed form or diffrax) ->
+peaks and a convergence check.
 """
 
 import dataclasses
@@ -25,8 +26,9 @@ from ._board import (
 from ._checks import Flag, combine, flag_if, is_concrete, raise_if_flagged
 from ._impact import LAWS, ImpactResult
 from ._integrate import SOLVERS, solve_modes
-from ._kinematics import HousingImpact, housing_impact, support_jumps
-from ._motion import HalfSine, Impulse, Record
+from ._clatter import Impacts, impact_sequence
+from ._kinematics import HousingImpact, housing_impact
+from ._motion import HalfSine, Impulse, PulseTrain, Record
 from ._peaks import FieldPeak, field_on_grid, find_peak
 from ._scene import Board, Scene, check_scene, scene_flags
 
@@ -50,6 +52,9 @@ class Numerics(eqx.Module):
     - `convergence_rtol`: `converged` when the mode check changes the peak stress by less than this.
     - `stretching`: nonlinear mid-plane stretching for axially immovable supports (diffrax only).
     - `law`: restitution law of the housing impact.
+    - `max_impacts`: impacts followed (1: the first corner impact only, the thesis's model; more: the housing
+      flies freely after each impact and clatters onto the next corner, closed form only). `rest_speed` (m/s):
+      a next impact approaching slower than this ends the sequence.
     """
 
     method: str = eqx.field(static=True, default="closed_form")
@@ -70,6 +75,8 @@ class Numerics(eqx.Module):
     convergence_rtol: float = eqx.field(static=True, default=1e-3)
     stretching: bool = eqx.field(static=True, default=False)
     law: str = eqx.field(static=True, default="poisson")
+    max_impacts: int = eqx.field(static=True, default=1)
+    rest_speed: float = eqx.field(static=True, default=0.02)
 
     def __check_init__(self):
         def bad(field, value, valid):
@@ -95,6 +102,15 @@ class Numerics(eqx.Module):
         for name in ("points_per_period", "x_points_per_mode", "candidates", "max_steps"):
             if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
                 bad(name, getattr(self, name), "an int >= 1")
+        if not (isinstance(self.max_impacts, int) and self.max_impacts >= 1):
+            bad("max_impacts", self.max_impacts, "an int >= 1")
+        if not (self.rest_speed > 0 and math.isfinite(self.rest_speed)):
+            bad("rest_speed", self.rest_speed, "a finite speed > 0 m/s")
+        if self.max_impacts > 1 and self.method != "closed_form":
+            raise ValueError(
+                f"Numerics.max_impacts = {self.max_impacts} needs Numerics.method = \"closed_form\": the flight "
+                "between impacts spans thousands of board periods, which the closed form skips exactly"
+            )
         if self.stretching and self.method != "diffrax":
             raise ValueError('Numerics.stretching = True needs Numerics.method = "diffrax" (it has no closed form)')
 
@@ -129,18 +145,20 @@ class Peak(eqx.Module):
 class Response(eqx.Module):
     """What a drop does to the board.
 
-    - `impulse`: the housing's `ImpactResult` (None from `board_response`); `housing`: the `HousingImpact`.
-    - `support_jumps`: (dvA, dvB), m/s, normal to the board.
+    - `impulse`: the housing's first `ImpactResult` (None from `board_response`); `housing`: its `HousingImpact`.
+    - `impacts`: every impact of the drop (`Impacts`; one unless `Numerics.max_impacts` > 1).
+    - `support_jumps`: (dvA, dvB) of the first impact, m/s, normal to the board.
     - `peak`: a `Peak`.
     - `frequencies`: natural frequencies of the computed modes, Hz.
     - `n_modes`: modes in the reported peak; `check_modes`: modes of the convergence check.
     - `error_estimate`: |peak(n_modes) - peak(check_modes)| / peak(n_modes), relative, for the stress.
     - `converged`: `error_estimate <= Numerics.convergence_rtol`.
-    - `window`: time window, s. `flags`: `Flag` mask (0 = valid; otherwise the peak fields are NaN).
+    - `window`: time window, s (to one fundamental period after the last impact's pulse). `flags`: `Flag` mask (0 = valid; otherwise the peak fields are NaN).
     """
 
     impulse: ImpactResult | None
     housing: HousingImpact | None
+    impacts: Impacts | None
     support_jumps: Float[Array, "2"]
     peak: Peak
     frequencies: Float[Array, " n"]
@@ -153,23 +171,35 @@ class Response(eqx.Module):
 
 
 class ClosedFormModes(eqx.Module):
-    """q_k(t) = beta_k R_k(t): exact modal response to a half-sine (or ideal impulse) at the supports."""
+    """q_k(t) = sum_i beta_ik R_k(t - t_i): exact modal response to half-sine (or ideal impulse) pulses at the
+    supports starting at `times` t_i, pulse i leaving modal velocities `beta[i]`."""
 
     omega: Float[Array, " n"]
     zeta: Float[Array, ""]
     duration: Float[Array, ""]
-    beta: Float[Array, " n"]
+    beta: Float[Array, "K n"]
+    times: Float[Array, " K"]
+
+    def _since(self, t):
+        return jnp.asarray(t)[..., None, None] - self.times[:, None]
 
     def __call__(self, t) -> Float[Array, " n"]:
-        return self.beta * unit_response(t, self.omega, self.zeta, self.duration)
+        return jnp.sum(self.beta * unit_response(self._since(t), self.omega, self.zeta, self.duration), axis=-2)
 
     def jet(self, t):
         """(q, q', q'') at time t, each (n,)."""
-        return tuple(self.beta * r for r in unit_response_jet(t, self.omega, self.zeta, self.duration))
+        since = self._since(t)
+        started = since >= 0  # the impulse's jet is not zero before its pulse
+        jets = unit_response_jet(since, self.omega, self.zeta, self.duration)
+        return tuple(jnp.sum(jnp.where(started, self.beta * r, 0.0), axis=-2) for r in jets)
 
     def grid_factors(self, t):
-        """(beta, R) with q_k(t_j) = beta_k R[j, k]: R depends only on the board and the pulse."""
-        return self.beta, jax.vmap(lambda s: unit_response(s, self.omega, self.zeta, self.duration))(t)
+        """(scale, R) with q_k(t_j) = scale_k R[j, k]. With one pulse R depends only on the board and the pulse
+        (scale = beta), which lets batched drops share it."""
+        if self.beta.shape[0] == 1:
+            R = jax.vmap(lambda s: unit_response(s - self.times[0], self.omega, self.zeta, self.duration))(t)
+            return self.beta[0], R
+        return jnp.ones_like(self.omega), jax.vmap(self)(t)
 
 
 def support_motion(scene: Scene, jumps) -> HalfSine:
@@ -177,14 +207,17 @@ def support_motion(scene: Scene, jumps) -> HalfSine:
     return HalfSine(jumps[0], jumps[1], scene.contact.duration)
 
 
+def _pulse_duration(motion):
+    if isinstance(motion, Record):
+        return motion.t[-1] - motion.t[0]
+    return motion.duration if isinstance(motion, PulseTrain) else motion.as_half_sine().duration
+
+
 def _mode_counts(board: Board, motion, numerics: Numerics):
     M = numerics.computed_modes
     if numerics.n_modes is not None:
         return jnp.int32(M), jnp.int32(max(M // 2, 1))
-    if isinstance(motion, Record):
-        duration = motion.t[-1] - motion.t[0]
-    else:
-        duration = motion.as_half_sine().duration
+    duration = _pulse_duration(motion)
     f_tau = natural_frequencies(board, M) / (2 * math.pi) * duration
     needed = jnp.sum(f_tau < numerics.pulse_modes) + 1  # first k with f_k tau >= target
     used = jnp.clip(needed, numerics.min_modes, M).astype(jnp.int32)
@@ -192,11 +225,22 @@ def _mode_counts(board: Board, motion, numerics: Numerics):
     return used, check
 
 
-def _window(board: Board, motion, numerics: Numerics):
+def _span(board: Board, motion, numerics: Numerics):
+    """Window after each pulse's start (the whole window for a single pulse or a record)."""
     if numerics.window is not None:
         return jnp.asarray(numerics.window, dtype=float_dtype())
-    end = motion.end_time if isinstance(motion, Record) else motion.as_half_sine().duration
+    end = motion.end_time if isinstance(motion, Record) else _pulse_duration(motion)
     return end + fundamental_period(board)
+
+
+def _time_grid(board: Board, motion, numerics: Numerics, nt: int):
+    """(window, t): for a pulse train, nt points after each pulse's start (the free vibration that follows is
+    periodic in the fundamental period when N = 0, so its peak lies within one period of the pulse)."""
+    span = _span(board, motion, numerics)
+    unit = jnp.linspace(0.0, 1.0, nt)
+    if isinstance(motion, PulseTrain):
+        return motion.times[-1] + span, (motion.times[:, None] + unit * span).ravel()
+    return span, unit * span
 
 
 def _modal_solution(board: Board, motion, numerics: Numerics, window, mask):
@@ -204,10 +248,16 @@ def _modal_solution(board: Board, motion, numerics: Numerics, window, mask):
     if numerics.method == "closed_form":
         if isinstance(motion, Record):
             raise ValueError('a Record support motion needs Numerics(method="diffrax") (it has no closed form)')
-        pulse = motion.as_half_sine()
-        beta = modal_velocity_jumps(jnp.stack([pulse.dvA, pulse.dvB]), M) * mask
+        if isinstance(motion, PulseTrain):
+            jumps, times, duration = jnp.stack([motion.dvA, motion.dvB], -1), motion.times, motion.duration
+        else:
+            pulse = motion.as_half_sine()
+            jumps, times, duration = jnp.stack([pulse.dvA, pulse.dvB])[None], jnp.zeros(1), pulse.duration
+        beta = jax.vmap(lambda j: modal_velocity_jumps(j, M))(jumps) * mask
         omega = natural_frequencies(board, M)
-        return ClosedFormModes(omega, board.damping_ratio, pulse.duration, beta), jnp.asarray(False)
+        return ClosedFormModes(omega, board.damping_ratio, duration, beta, times), jnp.asarray(False)
+    if isinstance(motion, PulseTrain):
+        raise ValueError('a PulseTrain support motion needs Numerics(method="closed_form")')
     return solve_modes(
         board,
         motion,
@@ -238,13 +288,12 @@ class _Setup(NamedTuple):
 def _setup(board: Board, motion, numerics: Numerics, with_check: bool) -> _Setup:
     M = numerics.computed_modes
     used, check = _mode_counts(board, motion, numerics)
-    window = _window(board, motion, numerics)
+    nx, nt = numerics.grid_shape()
+    window, t = _time_grid(board, motion, numerics, nt)
     k = jnp.arange(1, M + 1)
     computed = jnp.maximum(used, check) if with_check else used
     modal, failed = _modal_solution(board, motion, numerics, window, (k <= computed).astype(float_dtype()))
-    nx, nt = numerics.grid_shape()
     x = jnp.linspace(0.0, 1.0, nx) * board.length
-    t = jnp.linspace(0.0, 1.0, nt) * window
     Q = modal.grid_factors(t)
     return _Setup(used, check, window, modal, failed, x, t, Q, k, -(wavenumbers(board, M) ** 2))
 
@@ -282,12 +331,15 @@ def _respond(board: Board, motion, numerics: Numerics, flags) -> Response:
     )
     if isinstance(motion, Record):
         jumps = motion.velocity_jumps
+    elif isinstance(motion, PulseTrain):
+        jumps = jnp.stack([motion.dvA[0], motion.dvB[0]])
     else:
         pulse = motion.as_half_sine()
         jumps = jnp.stack([pulse.dvA, pulse.dvB])
     return Response(
         impulse=None,
         housing=None,
+        impacts=None,
         support_jumps=jumps,
         peak=peak,
         frequencies=natural_frequencies(board, M) / (2 * math.pi),
@@ -306,11 +358,13 @@ def _board_response_jit(board, motion, numerics):
 
 
 def board_response(board: Board, motion, numerics: Numerics | None = None) -> Response:
-    """Peak response of a board to a support motion: `Impulse`, `HalfSine` or `Record` (the last needs
-    `Numerics(method="diffrax")`). Jit- and vmap-able."""
+    """Peak response of a board to a support motion: `Impulse`, `HalfSine`, `PulseTrain` (closed form only) or
+    `Record` (needs `Numerics(method="diffrax")`). Jit- and vmap-able."""
     numerics = Numerics() if numerics is None else numerics
-    if not isinstance(motion, (Impulse, HalfSine, Record)):
-        raise TypeError(f"motion must be an Impulse, HalfSine or Record, got {type(motion).__name__}")
+    if not isinstance(motion, (Impulse, HalfSine, PulseTrain, Record)):
+        raise TypeError(f"motion must be an Impulse, HalfSine, PulseTrain or Record, got {type(motion).__name__}")
+    if isinstance(motion, PulseTrain) and numerics.method != "closed_form":
+        raise ValueError('a PulseTrain support motion needs Numerics(method="closed_form")')
     if isinstance(motion, Record) and numerics.method != "diffrax":
         raise ValueError('a Record support motion needs Numerics(method="diffrax") (it has no closed form)')
     response = _board_response_jit(board, motion, numerics)
@@ -320,19 +374,51 @@ def board_response(board: Board, motion, numerics: Numerics | None = None) -> Re
     return response
 
 
+def drop_motion(scene: Scene, numerics: Numerics | None = None):
+    """The supports' motion in a drop: `(motion, impacts, first, flags)` with `motion` a `HalfSine` (one impact)
+    or a `PulseTrain` (`Numerics.max_impacts` > 1), `impacts` the `Impacts`, `first` the first `HousingImpact`
+    and `flags` the impacts' `Flag` mask."""
+    numerics = Numerics() if numerics is None else numerics
+    impacts, first = impact_sequence(scene, numerics.max_impacts, numerics.rest_speed, numerics.law)
+    if numerics.max_impacts == 1:
+        motion = support_motion(scene, impacts.support_jumps[0])
+    else:
+        jumps = impacts.support_jumps
+        motion = PulseTrain(impacts.t, jumps[:, 0], jumps[:, 1], scene.contact.duration)
+    return motion, impacts, first, impacts.flags
+
+
 def _simulate(scene: Scene, numerics: Numerics) -> Response:
-    hit = housing_impact(scene, law=numerics.law)
-    jumps = support_jumps(scene, hit)
-    response = _respond(scene.board, support_motion(scene, jumps), numerics, combine(scene_flags(scene), hit.flags))
-    return eqx.tree_at(lambda r: (r.impulse, r.housing), response, (hit.impact, hit), is_leaf=lambda x: x is None)
+    motion, impacts, hit, flags = drop_motion(scene, numerics)
+    response = _respond(scene.board, motion, numerics, combine(scene_flags(scene), flags))
+    return eqx.tree_at(
+        lambda r: (r.impulse, r.housing, r.impacts), response, (hit.impact, hit, impacts), is_leaf=lambda x: x is None
+    )
 
 
 _simulate_jit = eqx.filter_jit(_simulate)
 
 
+def _raise_eagerly(scene: Scene, numerics: Numerics, flags, impacts: Impacts | None, what: str):
+    """The compiled run found a problem: the eager checks name the field and its valid range."""
+    check_scene(scene)
+    housing_impact(scene, law=numerics.law)
+    if impacts is not None and int(flags) & Flag.PIVOTING_CONTACT:
+        n = int(impacts.count)
+        raise ValueError(
+            f"{what}: after impact {n} (t = {float(impacts.t[n - 1]) * 1e3:.4g} ms) a corner stays on the ground "
+            f"(next approach speed {float(impacts.approach_speed[n]):.3g} m/s < Numerics.rest_speed = "
+            f"{numerics.rest_speed:g} m/s) while the housing still turns: a pivot phase that free flight does not "
+            f"describe (Flag.PIVOTING_CONTACT). Use Numerics(max_impacts={n}) for the response to the impacts before "
+            "it; bd.impact_sequence(scene) shows the sequence."
+        )
+    raise_if_flagged(flags & ~Flag.SOLVER_FAILED, what)
+
+
 def simulate(scene: Scene, numerics: Numerics | None = None) -> Response:
-    """Simulate one drop: the housing's corner impact, the board's support jumps, its vibration, and the peak
-    bending stress, strain and deflection, where and when.
+    """Simulate one drop: the housing's corner impact (and with `Numerics(max_impacts=K)` the clattering impacts
+    after it), the board's support jumps, its vibration, and the peak bending stress, strain and deflection, where
+    and when.
 
     Concrete scenes are validated eagerly (`ValueError` naming the field and range); under `jit`/`vmap` problems
     come back in `Response.flags` with NaN peaks.
@@ -340,10 +426,7 @@ def simulate(scene: Scene, numerics: Numerics | None = None) -> Response:
     numerics = Numerics() if numerics is None else numerics
     response = _simulate_jit(scene, numerics)
     if is_concrete(scene) and int(response.flags):
-        # The compiled run found a problem: the eager checks name the field and its valid range.
-        check_scene(scene)
-        housing_impact(scene, law=numerics.law)
-        raise_if_flagged(response.flags & ~Flag.SOLVER_FAILED, "simulate")
+        _raise_eagerly(scene, numerics, response.flags, response.impacts, "simulate")
     return response
 
 
@@ -355,9 +438,8 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     """Peaks of the requested quantities (stress, strain, deflection) sharing one modal solution and one batched
     search; returns (values (len(quantities),), flags). `grid_deflection` takes the deflection peak from the grid
     without refinement (Monte-Carlo's cheap option; it undershoots by the grid's resolution)."""
-    hit = housing_impact(scene, law=numerics.law)
     board = scene.board
-    motion = support_motion(scene, support_jumps(scene, hit))
+    motion, _, _, impact_flags = drop_motion(scene, numerics)
     S = _setup(board, motion, numerics, with_check=False)
     mask = (S.k <= S.used).astype(float_dtype())
     kinds = sorted({"deflection" if q == "deflection" else "curvature" for q in quantities})
@@ -373,7 +455,7 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     scale = {"stress": board.youngs_modulus * board.thickness / 2, "strain": board.thickness / 2, "deflection": 1.0}
     values = jnp.stack([scale[q] * peaks[kinds.index("deflection" if q == "deflection" else "curvature")]
                         for q in quantities])
-    flags = combine(scene_flags(scene), hit.flags, board.flags(), flag_if(S.failed, Flag.SOLVER_FAILED))
+    flags = combine(scene_flags(scene), impact_flags, board.flags(), flag_if(S.failed, Flag.SOLVER_FAILED))
     return jnp.where(flags != 0, jnp.nan, values), flags
 
 
@@ -386,9 +468,8 @@ def _peak(scene: Scene, numerics: Numerics | None, quantity: str):
     numerics = Numerics() if numerics is None else numerics
     value, flags = _scene_peak(scene, numerics, quantity)
     if is_concrete(scene) and int(flags):
-        check_scene(scene)
-        housing_impact(scene, law=numerics.law)
-        raise_if_flagged(flags & ~Flag.SOLVER_FAILED, f"peak_{quantity}")
+        impacts = drop_motion(scene, numerics)[1] if int(flags) & Flag.PIVOTING_CONTACT else None
+        _raise_eagerly(scene, numerics, flags, impacts, f"peak_{quantity}")
     return value
 
 
@@ -422,7 +503,8 @@ class Fields(eqx.Module):
 
 
 def response_fields(scene: Scene, numerics: Numerics | None = None, nx: int = 101, nt: int = 801) -> Fields:
-    """Deflection, strain and stress over (x, t) for a scene, with the modes `simulate` reports.
+    """Deflection, strain and stress over (x, t) for a scene, with the modes `simulate` reports. With several
+    impacts, `nt` times follow each impact (the window after each, as in the peak search).
 
     Strain and stress are signed: those of the face on the board normal's side (-(h/2) u_xx; positive is tension).
     """
@@ -435,12 +517,12 @@ def response_fields(scene: Scene, numerics: Numerics | None = None, nx: int = 10
 def _fields(scene, response, numerics, nx, nt):
     board = scene.board
     M = numerics.computed_modes
-    motion = support_motion(scene, response.support_jumps)
+    motion = drop_motion(scene, numerics)[0]
     k = jnp.arange(1, M + 1)
     used = response.n_modes
-    modal, _ = _modal_solution(board, motion, numerics, response.window, (k <= used).astype(float_dtype()))
+    window, t = _time_grid(board, motion, numerics, nt)
+    modal, _ = _modal_solution(board, motion, numerics, window, (k <= used).astype(float_dtype()))
     x = jnp.linspace(0.0, 1.0, nx) * board.length
-    t = jnp.linspace(0.0, 1.0, nt) * response.window
     Q = modal.grid_factors(t)
     mask = (k <= used).astype(float_dtype())
     u = field_on_grid(mask, Q, x, board.length)

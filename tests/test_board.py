@@ -203,7 +203,7 @@ def test_record_csv(tmp_path):
         (lambda: bd.Numerics(stretching=True), "stretching"),
         (lambda: bd.Numerics(window=-1.0), "Numerics.window"),
         (lambda: bd.board_response(bd.Board(), bd.Record([0, 1e-3], [0, 1], [0, 1])), "diffrax"),
-        (lambda: bd.board_response(bd.Board(), (1.0, 2.0)), "Impulse, HalfSine or Record"),
+        (lambda: bd.board_response(bd.Board(), (1.0, 2.0)), "Impulse, HalfSine, PulseTrain or Record"),
     ],
 )
 def test_bad_input_is_named(make, match):
