@@ -73,10 +73,18 @@ from ._sensitivity import (
     sensitivities as sensitivities,
     smooth_peak_stress as smooth_peak_stress,
 )
+from ._campaign import (
+    STANDARDS as STANDARDS,
+    CampaignDrop as CampaignDrop,
+    CampaignResult as CampaignResult,
+    campaign as campaign,
+    campaign_drops as campaign_drops,
+)
 from ._bench import numpy_peak_stress as numpy_peak_stress, run_bench as run_bench, stability_study as stability_study
 from ._plots import (
     plot_deflected_board as plot_deflected_board,
     plot_bench as plot_bench,
+    plot_campaign as plot_campaign,
     plot_impact as plot_impact,
     plot_montecarlo as plot_montecarlo,
     plot_placement as plot_placement,

@@ -165,6 +165,38 @@ def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None):
     return fig
 
 
+def plot_campaign(result, *, ax=None, limit: float | None = None):
+    """Bar chart of a `CampaignResult`: peak stress (MPa) of every drop, coloured by attitude, the worst drop
+    outlined, drops the plane cannot represent marked n/a; `limit` (Pa) draws an allowable stress."""
+    import matplotlib.patches as mpatches
+
+    n = len(result.drops)
+    fig, ax = _axes(ax, figsize=(max(6.0, 0.38 * n + 2.0), 4.5))
+    colours = {"face": "tab:blue", "edge": "tab:orange", "corner": "tab:green", "board": "tab:purple"}
+    stress = np.asarray(result.stress, float) / 1e6
+    shown = np.nan_to_num(stress)
+    bars = ax.bar(range(n), shown, color=[colours[d.attitude] for d in result.drops])
+    worst = result.worst
+    bars[worst].set_edgecolor("black")
+    bars[worst].set_linewidth(2.0)
+    top = float(np.nanmax(stress)) if np.any(np.isfinite(stress)) else 1.0
+    for i, d in enumerate(result.drops):
+        if not np.isfinite(stress[i]):
+            ax.text(i, 0.02 * top, "n/a", ha="center", va="bottom", rotation=90, fontsize=8, color="0.4")
+    ax.annotate(f"worst: {stress[worst]:.1f} MPa", (worst, stress[worst]), xytext=(0, 6),
+                textcoords="offset points", ha="center", fontsize=9)
+    if limit is not None:
+        ax.axhline(limit / 1e6, color="tab:red", ls="--", lw=1.2, label=f"limit {limit / 1e6:g} MPa")
+    ax.set_xticks(range(n), [d.label for d in result.drops], rotation=70, ha="right", fontsize=8)
+    ax.set_ylabel("peak bending stress (MPa)")
+    ax.set_ylim(0, 1.15 * top)
+    ax.set_title(f"{result.standard}: {n} drops")
+    handles = [mpatches.Patch(color=c, label=a) for a, c in colours.items()
+               if any(d.attitude == a for d in result.drops)]
+    ax.legend(handles=handles + ([ax.lines[-1]] if limit is not None else []), fontsize=8, loc="upper right")
+    return fig
+
+
 def plot_bench(rows, *, ax=None):
     """Log-log chart of max relative error of the peak stress against seconds per drop, Pareto front marked."""
     from ._bench import pareto_front

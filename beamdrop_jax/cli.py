@@ -71,6 +71,8 @@ def _numerics(args):
         kw["solver"] = args.solver
     if getattr(args, "n_modes", None):
         kw["n_modes"] = args.n_modes
+    if getattr(args, "max_impacts", None):
+        kw["max_impacts"] = args.max_impacts
     return bd.Numerics(**kw)
 
 
@@ -102,6 +104,18 @@ def cmd_drop(args):
                           + f" (mode check changes the peak by {float(res.error_estimate) * 100:.3f} %)"),
         ]
     )
+    if numerics.max_impacts > 1:
+        imp = res.impacts
+        print(f"Impacts ({int(imp.count)} of at most {numerics.max_impacts}; ended: "
+              f"{bd.Ending(int(imp.ending)).name.lower().replace('_', ' ')})")
+        print(f"  {'#':>2} {'t (ms)':>9} {'corner (mm)':>16} {'approach (m/s)':>15} {'Pt, Pn (N s)':>20} "
+              f"{'dvA, dvB (m/s)':>17}")
+        for i in range(int(imp.count)):
+            print(f"  {i + 1:>2} {float(imp.t[i]) * 1e3:>9.3f} "
+                  f"{'({:.1f}, {:.1f})'.format(*(float(v) * 1e3 for v in imp.corner[i])):>16} "
+                  f"{float(imp.approach_speed[i]):>15.4f} "
+                  f"{'{:.4f}, {:.4f}'.format(*map(float, imp.P[i])):>20} "
+                  f"{'{:.3f}, {:.3f}'.format(*map(float, imp.support_jumps[i])):>17}")
     if not bool(res.converged):
         print("  note: not converged. An ideal impulse (duration 0) never converges in the mode count; "
               "give Contact.duration a physical value (0.05-1 ms).")
@@ -112,6 +126,26 @@ def cmd_drop(args):
         _save(bd.plot_deflected_board(fields, res), out / "deflection.png")
         fig = bd.plot_impact(hit.B, hit.v0, scene.contact.friction, scene.contact.restitution, law=numerics.law)
         _save(fig, out / "impact.png")
+
+
+def cmd_campaign(args):
+    import beamdrop_jax as bd
+
+    scene = _scene(args)
+    numerics = _numerics(args)
+    result = bd.campaign(scene, args.standard, numerics, mass=args.mass, height=args.height)
+    print(f"{args.standard}: {bd.STANDARDS[args.standard]}")
+    print(f"  {'#':>2}  {'drop':<36} {'height (m)':>10} {'angle (deg)':>11} {'reps':>4} {'stress (MPa)':>12} "
+          f"{'strain (ue)':>11} {'defl. (mm)':>10}")
+    for r in result.rows():
+        mark = " <- worst" if r["worst"] else ("  " + r["note"] if r["note"] else "")
+        print(f"  {r['drop']:>2}  {r['label']:<36} {r['height_m']:>10.3f} {r['orientation_deg']:>11.2f} "
+              f"{r['repetitions']:>4} {r['peak_stress_MPa']:>12.2f} {r['peak_strain_microstrain']:>11.1f} "
+              f"{r['peak_deflection_mm']:>10.3f}{mark}")
+    out = _out(args)
+    print(f"wrote {result.to_csv(out / f'campaign-{args.standard}.csv')}")
+    if not args.no_plots:
+        _save(bd.plot_campaign(result), out / f"campaign-{args.standard}.png")
 
 
 def _angles(spec: str):
@@ -235,7 +269,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=["closed_form", "diffrax"], help="board response method (default closed_form)")
     p.add_argument("--solver", help="diffrax solver name (Tsit5, Dopri5, Dopri8, Kvaerno5, ImplicitEuler, ...)")
     p.add_argument("--n-modes", type=int, help="exactly this many modes (default: chosen from the scene)")
+    p.add_argument("--max-impacts", type=int, help="follow the clattering impacts after the first (default 1)")
     p.set_defaults(func=cmd_drop)
+
+    p = sub.add_parser(
+        "campaign",
+        help="a standard drop campaign (ISTA 1A/2A, MIL-STD-810H 516.8-IV, IEC 60068-2-31, JESD22-B111): peak "
+        "stress (MPa) of every drop, the worst drop, CSV table and bar chart",
+    )
+    common(p)
+    p.add_argument("--standard", required=True, choices=["ista-1a", "ista-2a", "mil-std-810h-516-iv",
+                                                          "iec-60068-2-31", "jesd22-b111"])
+    p.add_argument("--mass", type=float, help="packaged mass for mass-dependent heights, kg (default: the housing's)")
+    p.add_argument("--height", type=float, help="free-fall height where the standard leaves it open, m (IEC: 1.0)")
+    p.add_argument("--n-modes", type=int, help="exactly this many modes (default: chosen from the scene)")
+    p.add_argument("--max-impacts", type=int, help="follow clattering impacts after each drop's first (default 1)")
+    p.set_defaults(func=cmd_campaign)
 
     p = sub.add_parser(
         "sensitivity",

@@ -49,3 +49,9 @@ def test_bad_scene_is_a_clear_error(tmp_path, capsys):
     bad.write_text("[contact]\nrestitution = 1.5\n")
     assert main(["drop", "--scene", str(bad), "--no-plots"]) == 2
     assert "Contact.restitution" in capsys.readouterr().err
+
+
+def test_drop_with_clattering_prints_the_impacts(capsys):
+    assert main(["drop", "--max-impacts", "3", "--no-plots"]) == 0
+    out = capsys.readouterr().out
+    assert "Impacts (3 of at most 3" in out and "17.442" in out
