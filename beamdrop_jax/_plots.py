@@ -52,22 +52,48 @@ def plot_impact(B, v0, friction, restitution, law: str = "poisson", *, ax=None, 
 
 
 def plot_stress_map(fields, response, *, ax=None):
-    """Bending stress over the board (x from end A) and time as a heat map, with the peak marked."""
-    fig, ax = _axes(ax, (7.0, 4.5))
+    """Bending stress over the board (x from end A) and time as a heat map, with the peak marked. A clattering
+    drop (`Response.impacts` with several impacts) gets one panel per impact, time measured from that impact."""
+    import matplotlib.pyplot as plt
+
+    impacts = getattr(response, "impacts", None)
+    K = 1 if impacts is None else int(np.shape(impacts.t)[0])
+    count = 1 if impacts is None else int(impacts.count)
+    t_all = np.asarray(fields.t).reshape(K, -1)
+    stress_all = np.asarray(fields.stress).reshape(len(fields.x), K, -1) / 1e6
+    if count > 1 and ax is None:
+        fig, axes = plt.subplots(1, count, figsize=(3.2 * count + 1.5, 4.5), layout="constrained", sharey=True)
+    else:
+        fig, ax = _axes(ax, (7.0, 4.5))
+        axes = [ax]
     x_mm = np.asarray(fields.x) * 1e3
-    t_ms = np.asarray(fields.t) * 1e3
-    stress = np.asarray(fields.stress) / 1e6
-    lim = np.abs(stress).max()
-    mesh = ax.pcolormesh(t_ms, x_mm, stress, cmap="RdBu_r", vmin=-lim, vmax=lim, shading="auto", rasterized=True)
-    fig.colorbar(mesh, ax=ax, label="bending stress (MPa), normal-side face")
+    lim = np.abs(stress_all[:, : len(axes)]).max()
     peak = response.peak
-    ax.plot(float(peak.t) * 1e3, float(peak.x) * 1e3, "k*", ms=14, mfc="yellow",
-            label=f"peak |stress| {float(peak.stress) / 1e6:.1f} MPa")
-    ax.set_xlabel("time after impact (ms)")
-    ax.set_ylabel("position along the board from end A (mm)")
-    ax.set_title(f"Stress over the board and time ({int(response.n_modes)} modes)")
-    ax.legend(loc="upper right", fontsize=8)
+    for i, ax in enumerate(axes):
+        start = float(impacts.t[i]) if count > 1 else 0.0
+        t_ms = (t_all[i] - start) * 1e3
+        mesh = ax.pcolormesh(t_ms, x_mm, stress_all[:, i], cmap="RdBu_r", vmin=-lim, vmax=lim, shading="auto",
+                             rasterized=True)
+        ends = t_all[i][0], t_all[i][-1]
+        if ends[0] <= float(peak.t) <= ends[1] and (count == 1 or i == _impact_of(impacts, float(peak.t))):
+            ax.plot((float(peak.t) - start) * 1e3, float(peak.x) * 1e3, "k*", ms=14, mfc="yellow",
+                    label=f"peak |stress| {float(peak.stress) / 1e6:.1f} MPa")
+            ax.legend(loc="upper right", fontsize=8)
+        ax.set_xlabel("time after impact (ms)" if count == 1 else f"ms after impact {i + 1} (t = {start * 1e3:.1f} ms)")
+    axes[0].set_ylabel("position along the board from end A (mm)")
+    fig.colorbar(mesh, ax=list(axes), label="bending stress (MPa), normal-side face")
+    title = f"Stress over the board and time ({int(response.n_modes)} modes)"
+    if count > 1:
+        fig.suptitle(title + f", {count} impacts")
+    else:
+        axes[0].set_title(title)
     return fig
+
+
+def _impact_of(impacts, t):
+    """Index of the last applied impact at or before time t."""
+    times = np.asarray(impacts.t)[: int(impacts.count)]
+    return int(np.searchsorted(times, t, side="right") - 1)
 
 
 def plot_deflected_board(fields, response, *, ax=None):
