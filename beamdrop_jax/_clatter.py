@@ -44,7 +44,7 @@ class Impacts(eqx.Module):
 
     - `t`: time of each impact from the first, s. `orientation`: the housing's angle then, rad.
     - `corner`: the striking corner's body coordinates from G, m.
-    - `P`: impulse (Pt, Pn), N s. `approach_speed`: the corner's normal speed towards the ground, m/s (for the
+    - `P`: impulse (Pt, Pn), N s. `energy_change`: the impact's kinetic energy change, J. `approach_speed`: the corner's normal speed towards the ground, m/s (for the
       first padding entry: the approach that ended the sequence). `mode`: the Routh `ImpactMode`.
     - `support_jumps`: the board supports' normal velocity jumps (dvA, dvB), m/s.
     - `count`: impacts applied. `ending`: an `Ending`. `flags`: `Flag` mask of the sequence.
@@ -54,6 +54,7 @@ class Impacts(eqx.Module):
     orientation: Float[Array, " K"]
     corner: Float[Array, "K 2"]
     P: Float[Array, "K 2"]
+    energy_change: Float[Array, " K"]
     approach_speed: Float[Array, " K"]
     mode: Int[Array, " K"]
     support_jumps: Float[Array, "K 2"]
@@ -162,6 +163,7 @@ def impact_sequence(
             orientation=theta,
             corner=hit.corner,
             P=jnp.where(applied, hit.impact.P, 0.0),
+            energy_change=jnp.where(applied, hit.impact.energy_change, 0.0),
             approach_speed=-hit.v0[1],
             mode=hit.impact.mode,
             support_jumps=jnp.where(applied, jumps, 0.0),
