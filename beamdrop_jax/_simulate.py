@@ -45,7 +45,9 @@ class Numerics(eqx.Module):
     - `n_modes`: `None` picks the count from the scene (modes up to f_k tau >= `pulse_modes`, at least
       `min_modes`, at most `max_modes`) and checks it against twice as many (or half as many when at the cap);
       an int means exactly modes 1..n_modes, checked against half as many.
-    - `window`: time window (s); `None` is the pulse duration plus one fundamental period.
+    - `window`: time window (s); `None` is the pulse duration plus one fundamental period. With several impacts
+      it is the window searched after each impact (the free vibration between impacts repeats with the
+      fundamental period when the axial force is 0, so one period after each pulse holds the peak).
     - `points_per_period`: time-grid points per period of the highest computed mode (N = 0 estimate);
       `x_points_per_mode`: spatial grid points per computed mode.
     - `refine`: Newton refinement of the grid's best `candidates` peaks (`newton_steps` each).

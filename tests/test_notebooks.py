@@ -15,7 +15,7 @@ SMALL = {
     "04_monte_carlo.ipynb": "N = 4000\nLIMIT = 2500e-6",
     "05_placement.ipynb": "STEPS = 4\nSTARTS = 1",
     "06_speed_vs_accuracy.ipynb": "RERUN = False",
-    "07_clatter_and_campaigns.ipynb": "N_ANGLES = 7\nMAX_IMPACTS = 3",
+    "07_clatter_and_campaigns.ipynb": "N_ANGLES = 7\nMAX_IMPACTS = 3\nWRITE_FIGURES = False",
 }
 
 
