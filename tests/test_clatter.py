@@ -252,3 +252,17 @@ def test_random_clattering_drops_have_finite_gradients():
     assert ok.sum() >= n // 2
     for leaf in jax.tree_util.tree_leaves(grads):
         assert np.all(np.isfinite(np.asarray(leaf)))
+
+
+def test_float32_sequence_and_peak_agree_with_float64():
+    scene = SCENES["default"]
+    imp64, _ = bd.impact_sequence(scene, max_impacts=4)
+    peak64 = float(bd.simulate(scene, bd.Numerics(max_impacts=3)).peak.stress)
+    with jax.enable_x64(False):
+        s32 = jax.tree_util.tree_map(lambda v: jnp.asarray(np.asarray(v), jnp.float32), scene)
+        imp32, _ = bd.impact_sequence(s32, max_impacts=4)
+        peak32 = bd.simulate(s32, bd.Numerics(max_impacts=3)).peak.stress
+        assert imp32.t.dtype == jnp.float32 and peak32.dtype == jnp.float32
+    np.testing.assert_allclose(np.asarray(imp32.t), np.asarray(imp64.t), rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(np.asarray(imp32.approach_speed), np.asarray(imp64.approach_speed), rtol=1e-5)
+    np.testing.assert_allclose(float(peak32), peak64, rtol=1e-4)
