@@ -207,6 +207,10 @@ def cmd_montecarlo(args):
 
     scene = _scene(args)
     numerics = bd.Numerics(n_modes=args.n_modes) if args.n_modes else None
+    if args.max_impacts:
+        import dataclasses
+
+        numerics = dataclasses.replace(numerics or bd.montecarlo_numerics(scene), max_impacts=args.max_impacts)
     res = bd.montecarlo(scene, args.n, jax.random.PRNGKey(args.seed), numerics=numerics, batch_size=args.batch_size)
     stress, strain = res.summary("stress"), res.summary("strain")
     print(f"{res.n} random drops (orientation uniform on [0, 360) deg), {res.n_invalid} outside the model and "
@@ -321,6 +325,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--batch-size", type=int, help="drops per compiled chunk")
     p.add_argument("--n-modes", type=int, help="modes per drop (default: chosen from the scene, f_k tau >= 1)")
+    p.add_argument("--max-impacts", type=int, help="follow clattering impacts after each drop's first (default 1)")
     p.set_defaults(func=cmd_montecarlo)
 
     p = sub.add_parser(

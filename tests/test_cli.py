@@ -55,3 +55,14 @@ def test_drop_with_clattering_prints_the_impacts(capsys):
     assert main(["drop", "--max-impacts", "3", "--no-plots"]) == 0
     out = capsys.readouterr().out
     assert "Impacts (3 of at most 3" in out and "17.442" in out
+
+
+def test_pivot_is_a_clear_cli_error_and_clattering_montecarlo_runs(tmp_path, capsys):
+    scene = tmp_path / "e0.toml"
+    import beamdrop_jax as bd
+
+    bd.save_scene(bd.Scene.default().replace(**{"contact.restitution": 0.0}), scene)
+    assert main(["drop", "--scene", str(scene), "--max-impacts", "3", "--no-plots"]) == 2
+    assert "pivot phase" in capsys.readouterr().err
+    assert main(["montecarlo", "-n", "64", "--max-impacts", "2", "--no-plots"]) == 0
+    assert "64 random drops" in capsys.readouterr().out
