@@ -35,9 +35,9 @@ from ._motion import JESD22_B111_CONDITION_B, HalfSine
 FACE_ORIENTATION = {1: math.pi, 2: -math.pi / 2, 3: 0.0, 4: math.pi / 2}
 _FACE_SIGN = {1: (None, 1), 2: (1, None), 3: (None, -1), 4: (-1, None)}  # which corner coordinate a face fixes
 
-# ISTA 1A / 2A free-fall heights by packaged-product mass: (upper mass bound kg (exclusive; 150 lb inclusive),
-# height m). Bounds 21, 41, 61, 100, 150 lb.
-_ISTA_MASS = (9.5, 18.6, 27.7, 45.4, 68.0)
+# ISTA 1A / 2A free-fall heights by packaged-product mass: below 21, 41, 61, 100 lb, and up to 150 lb inclusive.
+_LB = 0.45359237
+_ISTA_MASS = tuple(lb * _LB for lb in (21, 41, 61, 100, 150))
 _ISTA_HEIGHTS = {"ista-1a": (0.76, 0.61, 0.46, 0.31, 0.20), "ista-2a": (0.97, 0.81, 0.66, 0.51, 0.31)}
 
 
@@ -83,7 +83,8 @@ def _drop(label: str, width, height, h, repetitions=1) -> CampaignDrop:
 def _ista(name, mass):
     if not (0 < mass <= _ISTA_MASS[-1]):
         raise ValueError(
-            f"{name}: packaged mass = {mass:g} kg is outside (0, 68] kg (150 lb); heavier products use ISTA 1B / 2B"
+            f"{name}: packaged mass = {mass:g} kg is outside (0, {_ISTA_MASS[-1]:.2f}] kg (150 lb); heavier "
+            "products use ISTA 1B / 2B"
         )
     h = _ISTA_HEIGHTS[name][sum(mass >= bound for bound in _ISTA_MASS[:-1])]
     labels = ["corner 2-3-5", "edge 2-3", "edge 3-5", "edge 2-5"] + [f"face {f}" for f in (1, 2, 3, 4, 5, 6)]
@@ -91,10 +92,10 @@ def _ista(name, mass):
 
 
 def _mil(mass):
-    if not (0 < mass < 45.4):
+    if not (0 < mass < 100 * _LB):
         raise ValueError(
-            f"mil-std-810h-516-iv: mass = {mass:g} kg; the 122 cm / 26-drop transit drop is for materiel under "
-            "45.4 kg (100 lb); heavier materiel has other heights in Table 516.8-VI"
+            f"mil-std-810h-516-iv: mass = {mass:g} kg is outside (0, 45.36) kg: the 122 cm / 26-drop transit drop is "
+            "for materiel under 100 lb; heavier materiel has other heights in the method's table"
         )
     faces = [f"face {f}" for f in range(1, 7)]
     edges = [f"edge {a}-{b}" for a, b in [(1, 2), (2, 3), (3, 4), (1, 4)]]
