@@ -14,7 +14,9 @@ constant gives the impact time the implicit-function derivative ds/dp = -(dh/dp)
 The sequence stops at `max_impacts`, or when the next approach speed is below `rest_speed`. Stopping while the
 housing still turns (|w| R >= rest_speed) means a corner stays on the ground and the housing pivots about it (for
 example restitution 0, or a corner chattering to rest): free flight does not describe what follows, so the
-sequence is flagged `Flag.PIVOTING_CONTACT` instead of continued with a wrong answer.
+sequence is flagged `Flag.PIVOTING_CONTACT` instead of continued with a wrong answer. Rocking between two corners
+can also converge onto a face, ending in two corners landing at once while the housing still turns:
+`Flag.FLAT_LANDING_WITH_MOTION`, outside the single-contact law as for a first impact.
 """
 
 import enum
