@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._checks import GRAVITY
-from ._montecarlo import DropDistribution, _evaluate, montecarlo, montecarlo_numerics, sample_axes
+from ._montecarlo import DropDistribution, _evaluate, inner_batch, montecarlo, montecarlo_numerics, sample_axes
 from ._scene import Scene
 from ._simulate import Numerics
 
@@ -35,9 +35,10 @@ def _median_time(fn, repeats):
 def _jax_method(samples, axes, numerics, repeats, f32=False):
     """Seconds per drop and peak stresses of one compiled, vmapped batch (the same drops for every method)."""
     n = int(samples.drop.orientation.shape[0])
+    inner = inner_batch(numerics, n)  # as montecarlo runs it
 
     def run(batch):
-        stress, _, _, _ = _evaluate(batch, axes, numerics, True)
+        stress, _, _, _ = _evaluate(batch, axes, numerics, True, inner if n % inner == 0 else None)
         return np.asarray(jax.block_until_ready(stress), dtype=np.float64)
 
     if f32:

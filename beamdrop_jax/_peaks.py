@@ -1,7 +1,9 @@
 """Peak of |sum_k c_k q_k(t) sin(k pi x / L)| over x in [0, L] and t in [0, window].
 
-A coarse grid finds candidate peaks (the largest local maxima in time of the spatial envelope); Newton's method on
-the modal series refines each within a grid cell; the largest wins. The peak's gradient is the gradient at the
+A coarse grid finds candidate peaks (the largest local maxima in time of the spatial envelope); each is refined
+from the vertex of the parabolas through its grid neighbours by Newton's method on the modal series, steps scaled
+into a trust radius of one grid cell that halves when a step does not gain; the largest wins, never below its grid
+value. The peak's gradient is the gradient at the
 maximiser (envelope theorem), so the maximiser enters under `stop_gradient`, except at the window's end, where the
 window's own dependence on the parameters counts.
 """
@@ -79,10 +81,11 @@ def find_peak(
     # A plain max over x, then arg-maxima only where needed: a full 2-D argmax is a slow variadic reduction.
     envelope = A.max(axis=0)
     if not refine:
+        # The value by a plain max (where it lies only if asked for: XLA drops the arg-maxima when unused).
+        value = envelope.max()
         j = envelope.argmax()
-        coarse = jnp.max(envelope[::2])
-        err = (envelope[j] - coarse) / jnp.maximum(envelope[j], jnp.finfo(A.dtype).tiny)
-        return FieldPeak(envelope[j], x[A[:, j].argmax()], t[j], err)
+        err = (value - jnp.max(envelope[::2])) / jnp.maximum(value, jnp.finfo(A.dtype).tiny)
+        return FieldPeak(value, x[A[:, j].argmax()], t[j], err)
 
     # Candidates: the largest local maxima in time of the spatial envelope (a lone spike at an end counts).
     left = jnp.concatenate([jnp.full((1,), -jnp.inf, A.dtype), envelope[:-1]])
@@ -91,53 +94,71 @@ def find_peak(
     k_cand = min(candidates, envelope.shape[0])
     idx = _largest(jnp.where(is_local, envelope, -jnp.inf), k_cand)
     where_x = A[:, idx].argmax(axis=0)
-    x0 = x[where_x]
-    t0 = t[idx]
     sign0 = jnp.sign(F[where_x, idx])
-    cell = jnp.stack([x[1] - x[0], t[1] - t[0]])
-    lo = jnp.stack([jnp.zeros_like(length), jnp.zeros_like(window)])
-    hi = jnp.stack([length, window])
+    cell_x, cell_t = x[1] - x[0], t[1] - t[0]
+
+    def vertex(lo, mid, hi):
+        # Offset (cells) of the parabola through three neighbouring grid values: a start inside the right cell.
+        curv = lo - 2 * mid + hi
+        return jnp.clip(0.5 * (lo - hi) / jnp.where(curv < 0, curv, -1.0), -0.5, 0.5) * (curv < 0)
+
+    nx, nt = A.shape
+    ix_lo, ix_hi = jnp.maximum(where_x - 1, 0), jnp.minimum(where_x + 1, nx - 1)
+    it_lo, it_hi = jnp.maximum(idx - 1, 0), jnp.minimum(idx + 1, nt - 1)
+    mid = A[where_x, idx]
+    x0 = x[where_x] + cell_x * vertex(A[ix_lo, idx], mid, A[ix_hi, idx])
+    t0 = t[idx] + cell_t * vertex(A[where_x, it_lo], mid, A[where_x, it_hi])
 
     # The search itself is not differentiated: only the final evaluation at the maximiser is.
-    coeffs_c, length_c, modal_c = stop_gradient((coeffs, length, modal))
+    coeffs_c, length_c, window_c, modal_c = stop_gradient((coeffs, length, window, modal))
     k = jnp.arange(1, coeffs.shape[-1] + 1, dtype=float_dtype()) * math.pi / length_c
 
-    def value_grad_hess(p, sign):
-        # Field derivatives in closed form in x; q, q', q'' from the modal solution's own jet in t.
-        q, dq, ddq = modal_c.jet(p[1])
-        sn, cs = jnp.sin(k * p[0]), jnp.cos(k * p[0])
-        c = sign * coeffs_c
-        f = jnp.sum(c * q * sn)
-        g = jnp.stack([jnp.sum(c * q * k * cs), jnp.sum(c * dq * sn)])
-        H = jnp.stack(
-            [
-                jnp.stack([-jnp.sum(c * q * k * k * sn), jnp.sum(c * dq * k * cs)]),
-                jnp.stack([jnp.sum(c * dq * k * cs), jnp.sum(c * ddq * sn)]),
-            ]
-        )
+    def value_grad_hess(x, t, sign):
+        # Field derivatives in closed form in x; q, q', q'' from the modal solution's own jet in t. Scalars, not
+        # stacked arrays: tiny stacks and transposes inside the loop cost more than the arithmetic under vmap.
+        q, dq, ddq = modal_c.jet(t)
+        sn, cs = jnp.sin(k * x), jnp.cos(k * x)
+        a, b = sign * coeffs_c * q, sign * coeffs_c * dq
+        f = jnp.sum(a * sn)
+        g = (jnp.sum(a * k * cs), jnp.sum(b * sn))
+        H = (-jnp.sum(a * k * k * sn), jnp.sum(b * k * cs), jnp.sum(sign * coeffs_c * ddq * sn))
         return f, g, H
 
-    def refine_one(x0, t0, sign):
+    def refine_one(x0, t0, sign, x_grid, t_grid, f_grid):
         def step(carry, _):
-            p, f, g, H, gain = carry
-            det = H[0, 0] * H[1, 1] - H[0, 1] ** 2
-            concave = (H[0, 0] < 0) & (det > 0)
+            x, t, f, (gx, gt), (hxx, hxt, htt), _, radius = carry
+            det = hxx * htt - hxt**2
+            concave = (hxx < 0) & (det > 0)
             det_safe = jnp.where(concave, det, 1.0)
-            newton = -jnp.stack([H[1, 1] * g[0] - H[0, 1] * g[1], H[0, 0] * g[1] - H[0, 1] * g[0]]) / det_safe
-            uphill = 0.5 * cell * jnp.sign(g)
-            d = jnp.clip(jnp.where(concave, newton, uphill), -cell, cell)
-            p_new = jnp.clip(p + d, lo, hi)
-            f_new, g_new, H_new = value_grad_hess(p_new, sign)
+            # In grid cells: a Newton step where the field is concave, else half a cell uphill; scaled as a whole
+            # (not clipped per axis, which turns steps along a curved ridge off it) into the trust radius,
+            # which halves after a step that does not gain.
+            ux = jnp.where(concave, -(htt * gx - hxt * gt) / det_safe / cell_x, 0.5 * jnp.sign(gx))
+            ut = jnp.where(concave, -(hxx * gt - hxt * gx) / det_safe / cell_t, 0.5 * jnp.sign(gt))
+            shrink = jnp.minimum(1.0, radius / jnp.maximum(jnp.maximum(jnp.abs(ux), jnp.abs(ut)), 1e-30))
+            x_new = jnp.clip(x + shrink * ux * cell_x, 0.0, length_c)
+            t_new = jnp.clip(t + shrink * ut * cell_t, 0.0, window_c)
+            f_new, g_new, H_new = value_grad_hess(x_new, t_new, sign)
             better = f_new > f
-            keep = lambda a, b: jnp.where(better, a, b)  # noqa: E731
-            return (keep(p_new, p), keep(f_new, f), keep(g_new, g), keep(H_new, H), keep(f_new - f, 0.0)), None
+            keep = lambda a, b: jax.tree_util.tree_map(lambda u, v: jnp.where(better, u, v), a, b)  # noqa: E731
+            new = keep((x_new, t_new, f_new, g_new, H_new), carry[:5])
+            return (*new, jnp.where(better, f_new - f, 0.0), jnp.where(better, radius, 0.5 * radius)), None
 
-        p0 = jnp.stack([x0, t0])
-        f0, g0, H0 = value_grad_hess(p0, sign)
-        (p, f, _, _, gain), _ = jax.lax.scan(step, (p0, f0, g0, H0, jnp.zeros_like(f0)), None, length=newton_steps)
-        return p, f, gain
+        f0, g0, H0 = value_grad_hess(x0, t0, sign)
+        carry = (x0, t0, f0, g0, H0, jnp.zeros_like(f0), jnp.ones_like(f0))
+        if newton_steps <= 2:  # unrolled in Python: XLA fuses across the steps (scan's unroll does not)
+            for _ in range(newton_steps):
+                carry, _ = step(carry, None)
+        else:  # a loop: short compile times for the interactive path's many steps
+            carry, _ = jax.lax.scan(step, carry, None, length=newton_steps)
+        x, t, f, _, _, gain, _ = carry
+        # Never below the grid point it started from (a poor parabolic start can lie lower).
+        grid_wins = f_grid > f
+        x, t, f = jnp.where(grid_wins, x_grid, x), jnp.where(grid_wins, t_grid, t), jnp.maximum(f, f_grid)
+        return jnp.stack([x, t]), f, gain
 
-    p_all, f_all, gain_all = jax.vmap(refine_one)(*stop_gradient((x0, t0, sign0)))
+    starts = (x0, t0, sign0, x[where_x], t[idx], A[where_x, idx])
+    p_all, f_all, gain_all = jax.vmap(refine_one)(*stop_gradient(starts))
     best = jnp.argmax(f_all)
     p_best = jax.lax.stop_gradient(p_all[best])
     x_star = p_best[0]

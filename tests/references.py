@@ -123,19 +123,14 @@ def beam_frequencies(EI, rhoA, N, L, n):
     return np.sqrt((EI * kap**4 + N * kap**2) / rhoA)
 
 
-def dense_impulse_peak(dvA, dvB, EI, rhoA, L, E, h, n_modes, window, nx=801, nt=40001, times=(0.0,)):
-    """Peak |stress| of an undamped beam after ideal support velocity jumps, by brute force on a dense grid.
-
-    Each mode is a free oscillation from zero displacement with the modal velocity the jumps leave:
-    the Galerkin projection of -(dvA (1 - x/L) + dvB x/L) onto sin(k pi x / L), computed here by quadrature.
-    Several jumps (arrays dvA, dvB at `times`) superpose, each starting at its time.
-    """
+def impulse_curvature(dvA, dvB, EI, rhoA, L, n_modes, x, t, times=(0.0,)):
+    """Curvature (len(x), len(t)) of an undamped beam after ideal support velocity jumps (see
+    `dense_impulse_peak`)."""
     dvA, dvB, times = np.atleast_1d(dvA), np.atleast_1d(dvB), np.atleast_1d(times)
+    x, t = np.atleast_1d(x), np.atleast_1d(t)
     xq = np.linspace(0, L, 20001)
     w = beam_frequencies(EI, rhoA, 0.0, L, n_modes)
-    x = np.linspace(0, L, nx)
-    t = np.linspace(0, window, nt)
-    curv = np.zeros((nx, nt))
+    curv = np.zeros((x.size, t.size))
     for k in range(1, n_modes + 1):
         shape = np.sin(k * np.pi * xq / L)
         q = np.zeros_like(t)
@@ -144,6 +139,19 @@ def dense_impulse_peak(dvA, dvB, EI, rhoA, L, E, h, n_modes, window, nx=801, nt=
             beta = np.trapezoid(rigid * shape, xq) / np.trapezoid(shape * shape, xq)
             q += np.where(t >= t0, beta * np.sin(w[k - 1] * (t - t0)) / w[k - 1], 0.0)
         curv -= (k * np.pi / L) ** 2 * np.outer(np.sin(k * np.pi * x / L), q)
+    return curv
+
+
+def dense_impulse_peak(dvA, dvB, EI, rhoA, L, E, h, n_modes, window, nx=801, nt=40001, times=(0.0,)):
+    """Peak |stress| of an undamped beam after ideal support velocity jumps, by brute force on a dense grid.
+
+    Each mode is a free oscillation from zero displacement with the modal velocity the jumps leave:
+    the Galerkin projection of -(dvA (1 - x/L) + dvB x/L) onto sin(k pi x / L), computed here by quadrature.
+    Several jumps (arrays dvA, dvB at `times`) superpose, each starting at its time.
+    """
+    x = np.linspace(0, L, nx)
+    t = np.linspace(0, window, nt)
+    curv = impulse_curvature(dvA, dvB, EI, rhoA, L, n_modes, x, t, times)
     i, j = np.unravel_index(np.abs(curv).argmax(), curv.shape)
     return E * h / 2 * abs(curv[i, j]), x[i], t[j]
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import beamdrop_jax as bd
-from references import darboux_keller, dense_impulse_peak, point_velocity
+from references import darboux_keller, dense_impulse_peak, impulse_curvature, point_velocity
 from test_scene import random_scenes
 
 G = 9.80665
@@ -47,11 +47,13 @@ def test_simulate_against_hand_calculation():
     EI = 22e9 * 0.05 * 1e-9 / 12
     window = 2 * math.pi / (math.pi / L) ** 2 / math.sqrt(EI / (1900 * 0.05e-3))
     np.testing.assert_allclose(res.window, window, rtol=1e-12)
-    stress, xs, ts = dense_impulse_peak(dvA, dvB, EI, 1900 * 0.05e-3, L, 22e9, 1e-3, 4, window)
+    stress, _, _ = dense_impulse_peak(dvA, dvB, EI, 1900 * 0.05e-3, L, 22e9, 1e-3, 4, window)
     # The brute-force grid (800 x 40000 cells) can only undershoot, by at most ~(2 pi / cells per wave)^2 / 2.
     assert stress * (1 - 1e-9) <= float(res.peak.stress) <= stress * (1 + 2e-5)
-    np.testing.assert_allclose(res.peak.x, xs, atol=2 * L / 800)
-    np.testing.assert_allclose(res.peak.t, ts, atol=2 * window / 40000)
+    # Where: the reference field at the reported point carries the reported peak (this free vibration has near-equal
+    # maxima at other places, so the dense grid's pick need not be the reported one).
+    curv = impulse_curvature(dvA, dvB, EI, 1900 * 0.05e-3, L, 4, float(res.peak.x), float(res.peak.t))
+    np.testing.assert_allclose(22e9 * 1e-3 / 2 * abs(curv[0, 0]), float(res.peak.stress), rtol=1e-7)
     np.testing.assert_allclose(res.peak.strain, res.peak.stress / 22e9, rtol=1e-12)
 
 
