@@ -60,6 +60,12 @@ from ._optimize import (
     placement_objective as placement_objective,
     risk as risk,
 )
+from ._superposition import (
+    SuperpositionTable as SuperpositionTable,
+    superposition_table as superposition_table,
+    table_numerics as table_numerics,
+    table_peaks as table_peaks,
+)
 from ._montecarlo import (
     DropDistribution as DropDistribution,
     MonteCarloResult as MonteCarloResult,

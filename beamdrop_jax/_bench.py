@@ -18,6 +18,7 @@ from ._checks import GRAVITY
 from ._montecarlo import DropDistribution, _evaluate, inner_batch, montecarlo, montecarlo_numerics, sample_axes
 from ._scene import Scene
 from ._simulate import Numerics
+from ._superposition import table_numerics
 
 REFERENCE = Numerics(n_modes=32)
 
@@ -224,6 +225,13 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     add("closed_form f32", "n_modes=6 refine=True", sec, vals)
     sec, vals = _jax_method(drops, axes, fast, repeats, f32=True)
     add("closed_form f32", label, sec, vals)
+    # Superposed: errors on the same drops; time per drop of whole `montecarlo` calls (table build, sampling and
+    # transfers included) on many drops, the way it is used.
+    big = 4096 if tiny else 2**20
+    sup = montecarlo(scene, n, key, progress=False, superpose=True)
+    sec = _median_time(lambda: montecarlo(scene, big, key, progress=False, superpose=True), repeats) / big
+    add("montecarlo superposed", f"table of {table_numerics(scene).n_modes} modes x 256 directions, "
+        f"whole call, {big} drops", sec, sup.peak_stress)
 
     n_ode = min(n, 4 if tiny else 16 if quick else 64)
     solvers = ("Tsit5", "Kvaerno5") if tiny else ("Tsit5", "Dopri5", "Dopri8", "Kvaerno5", "ImplicitEuler")
@@ -237,9 +245,12 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
             sec, vals = _jax_method(sub, axes, num, 1)
             add("diffrax", f"{solver} rtol={rtol:g} n_modes=6", sec, vals)
 
+    # The peer timed on 4096 drops (the bench's own, repeated): NumPy's per-call overhead is then small.
+    tiled = np.resize(np.asarray(samples), max(n, 4096))
     for m in (4, 6):
-        sec = _median_time(lambda: numpy_peak_stress(scene, samples, m), repeats) / n
-        add("peer: numpy closed form", f"n_modes={m} grid max", sec, numpy_peak_stress(scene, samples, m))
+        sec = _median_time(lambda: numpy_peak_stress(scene, tiled, m), repeats) / tiled.size
+        add("peer: numpy closed form", f"n_modes={m} grid max, {tiled.size} drops", sec,
+            numpy_peak_stress(scene, samples, m))
 
     n_scipy = min(n, 2 if tiny else 8 if quick else 32)
     sub = jax.tree_util.tree_map(lambda v, a: v if a is None else v[:n_scipy], drops, axes)

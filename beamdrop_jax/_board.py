@@ -15,6 +15,7 @@ from jaxtyping import Array, Float
 
 from ._checks import float_dtype
 from ._scene import Board
+from ._trig import cexp, sincos
 
 
 def mode_numbers(n_modes: int) -> Float[Array, " n"]:
@@ -70,13 +71,13 @@ def _response_phasor(t, omega, zeta, duration):
     t_pos = jnp.maximum(t, 0.0)
     omega_d = omega * jnp.sqrt(1.0 - zeta**2)
     lam = -zeta * omega + 1j * omega_d
-    e_lam_t = jnp.exp(lam * t_pos)
+    e_lam_t = cexp(lam * t_pos)
 
     is_pulse = tau > 0
     tau_s = jnp.where(is_pulse, tau, 1.0)
     Omega = math.pi / tau_s
     T = jnp.minimum(t_pos, tau_s)
-    e_rest = jnp.exp(lam * (t_pos - T))  # |.| <= 1: no overflow for heavy damping
+    e_rest = cexp(lam * (t_pos - T))  # |.| <= 1: no overflow for heavy damping
 
     def piece(sign):
         # Integral over [0, T] of e^{lam (t - s)} e^{i sign Omega s} ds.
@@ -84,7 +85,7 @@ def _response_phasor(t, omega, zeta, duration):
         zT = z * T
         small = jnp.abs(zT) < _SERIES_RADIUS
         z_safe = jnp.where(small, 1.0 + 0j, z)
-        direct = (e_rest * jnp.exp(1j * sign * Omega * T) - e_lam_t) / z_safe
+        direct = (e_rest * cexp(1j * sign * Omega * T) - e_lam_t) / z_safe
         series = e_lam_t * T * _phi(jnp.where(small, zT, 0j))
         return jnp.where(small, series, direct)
 
@@ -111,8 +112,9 @@ def unit_response_jet(t, omega, zeta, duration):
     Z, lam, omega_d, (is_pulse, tau_s, Omega, t_pos), t = _response_phasor(t, omega, zeta, duration)
     during = is_pulse & (t_pos <= tau_s)
     amp = math.pi / (2.0 * tau_s)
-    g = jnp.where(during, amp * jnp.sin(Omega * t_pos), 0.0)
-    dg = jnp.where(during, amp * Omega * jnp.cos(Omega * t_pos), 0.0)
+    sin, cos = sincos(Omega * t_pos)
+    g = jnp.where(during, amp * sin, 0.0)
+    dg = jnp.where(during, amp * Omega * cos, 0.0)
     dZ = lam * Z + g
     ddZ = lam * dZ + dg
     return jnp.imag(Z) / omega_d, jnp.imag(dZ) / omega_d, jnp.imag(ddZ) / omega_d

@@ -29,6 +29,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ._checks import GRAVITY, Flag, combine, flag_if
 from ._kinematics import HousingImpact, corner_impact, housing_impact, support_jumps
 from ._scene import Scene
+from ._trig import sincos
 
 
 class Ending(enum.IntEnum):
@@ -79,7 +80,7 @@ def corner_heights(q, y, vy, theta, spin, s):
     """Height above the ground (m) and its rate (m/s) of body points `q` (..., 2) at time `s` of free flight
     from centre-of-mass height `y`, vertical velocity `vy`, angle `theta` and `spin`."""
     angle = theta + spin * s
-    sn, cs = jnp.sin(angle), jnp.cos(angle)
+    sn, cs = sincos(angle)
     h = y + vy * s - 0.5 * GRAVITY * s**2 + q[..., 0] * sn + q[..., 1] * cs
     dh = vy - GRAVITY * s + spin * (q[..., 0] * cs - q[..., 1] * sn)
     return h, dh

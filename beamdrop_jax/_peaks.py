@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 from ._checks import float_dtype
+from ._trig import sincos
 
 
 class FieldPeak(eqx.Module):
@@ -35,7 +36,7 @@ def stop_gradient(tree):
 
 def mode_shapes(x, length, n_modes: int) -> Float[Array, "... n"]:
     k = jnp.arange(1, n_modes + 1, dtype=float_dtype())
-    return jnp.sin(jnp.asarray(x)[..., None] * k * math.pi / length)
+    return sincos(jnp.asarray(x)[..., None] * k * math.pi / length)[0]
 
 
 def field_on_grid(coeffs, Q, x, length) -> Float[Array, "nx nt"]:
@@ -117,7 +118,7 @@ def find_peak(
         # Field derivatives in closed form in x; q, q', q'' from the modal solution's own jet in t. Scalars, not
         # stacked arrays: tiny stacks and transposes inside the loop cost more than the arithmetic under vmap.
         q, dq, ddq = modal_c.jet(t)
-        sn, cs = jnp.sin(k * x), jnp.cos(k * x)
+        sn, cs = sincos(k * x)
         a, b = sign * coeffs_c * q, sign * coeffs_c * dq
         f = jnp.sum(a * sn)
         g = (jnp.sum(a * k * cs), jnp.sum(b * sn))

@@ -5,6 +5,7 @@ Construction checks concrete values eagerly (`ValueError` naming the field and t
 checked by `scene_flags`, which results carry.
 """
 
+import functools
 import importlib.resources
 import math
 import tomllib
@@ -244,7 +245,8 @@ class Scene(eqx.Module):
 def scene_flags(scene: Scene):
     """Traceable validation of a scene: an int32 mask of `Flag` bits (0 when everything is valid)."""
     h, c, d = scene.housing, scene.contact, scene.drop
-    finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(scene)]))
+    # A chain of ands, not a stack: under vmap a stack broadcasts every fixed field to the batch.
+    finite = functools.reduce(jnp.logical_and, [jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(scene)])
     return combine(
         flag_if(~finite, Flag.NONFINITE_INPUT),
         *(
