@@ -28,6 +28,8 @@ from ._peaks import mode_shapes
 from ._scene import Board, Scene, scene_flags
 from ._simulate import Numerics, _search, _setup, drop_motion
 
+_BUILD_BATCH = 16
+
 
 def _pseudo_angle(dvA, dvB):
     """A monotone stand-in for the direction's angle mod pi, in [0, 2]: p = 1 - a / (|a| + b) with (a, b) the jump
@@ -157,7 +159,8 @@ def _build(board: Board, duration, numerics: Numerics, n_angles: int):
         deflection = at(mask, found.x[1], found.t[1])
         return curvature, deflection, found.x[0], found.t[0], S.failed
 
-    curvature, deflection, x, t, failed = jax.vmap(node)(pseudo)
+    # A few directions at a time: their (x, t) grids then stay in cache (all at once streamed ~40 MB, 2x slower).
+    curvature, deflection, x, t, failed = jax.lax.map(node, pseudo, batch_size=_BUILD_BATCH)
     return curvature, deflection, x, t, combine(board.flags(), flag_if(jnp.any(failed), Flag.SOLVER_FAILED))
 
 
