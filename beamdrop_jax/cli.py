@@ -233,12 +233,12 @@ def cmd_montecarlo(args):
 
 def cmd_bench(args):
     import beamdrop_jax as bd
-    from beamdrop_jax._bench import ratio_at
+    from beamdrop_jax._bench import PEERS, ratio_at
 
     level = "tiny" if args.tiny else "quick" if args.quick else "full"
     print(f"beamdrop bench ({level}): peak-stress error against 32 modes refined (f64), seconds per drop")
     rows = bd.run_bench(_scene(args), level=level, out=_out(args))
-    for peer in ("peer: numpy", "peer: scipy"):
+    for peer in PEERS:
         ratio = ratio_at(rows, peer)
         print(f"  speed ratio at 1 % error against {peer[6:]}: " + (f"{ratio:.1f}x" if ratio else "n/a (no row meets it)"))
     print(f"wrote {Path(args.out) / 'bench.json'} and {Path(args.out) / 'bench.png'}")
