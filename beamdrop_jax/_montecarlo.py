@@ -331,5 +331,6 @@ def montecarlo(
                 collect()
         while pending:
             collect()
-    stress, strain, deflection, flags, valid = jax.device_put(outputs + [outputs[3] == Flag.OK])  # jnp.asarray: 4x slower
+    # `device_put`, not `jnp.asarray`: 1.2 against 5.3 ms for an 8 MB array.
+    stress, strain, deflection, flags, valid = jax.device_put(outputs + [outputs[3] == Flag.OK])
     return MonteCarloResult(samples, stress, strain, deflection, flags, valid)

@@ -38,7 +38,8 @@ def test_bench_tiny_writes_table_and_chart(tmp_path):
     assert main(["bench", "--tiny", "--out", str(tmp_path)]) == 0
     table = json.loads((tmp_path / "bench.json").read_text())
     methods = {r["method"] for r in table["rows"]}
-    assert {"closed_form", "diffrax", "peer: numpy closed form", "peer: numpy superposed", "peer: scipy solve_ivp"} <= methods
+    assert {"closed_form", "diffrax", "peer: numpy closed form", "peer: numpy superposed",
+            "peer: scipy solve_ivp"} <= methods
     for r in table["rows"]:
         assert r["seconds_per_drop"] > 0 and r["max_error"] >= 0
     assert (tmp_path / "bench.png").stat().st_size > 10_000
