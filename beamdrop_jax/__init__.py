@@ -10,11 +10,9 @@ from ._scene import (
     Scene as Scene,
     board_ends as board_ends,
     check_scene as check_scene,
-    embedded_scenes as embedded_scenes,
-    load_scene as load_scene,
-    save_scene as save_scene,
     scene_flags as scene_flags,
 )
+from ._scenefile import embedded_scenes as embedded_scenes, load_scene as load_scene, save_scene as save_scene
 from ._impact import ImpactMode as ImpactMode, ImpactResult as ImpactResult, routh_impulse as routh_impulse
 from ._kinematics import (
     HousingImpact as HousingImpact,
@@ -48,6 +46,7 @@ from ._simulate import (
     peak_strain as peak_strain,
     peak_stress as peak_stress,
     response_fields as response_fields,
+    response_notes as response_notes,
     simulate as simulate,
     support_motion as support_motion,
 )
@@ -92,6 +91,8 @@ from ._plots import (
     plot_bench as plot_bench,
     plot_campaign as plot_campaign,
     plot_impact as plot_impact,
+    plot_impacts as plot_impacts,
+    plot_scene as plot_scene,
     plot_montecarlo as plot_montecarlo,
     plot_placement as plot_placement,
     plot_stability as plot_stability,

@@ -20,7 +20,6 @@ Every drop starts from rest (no spin, no drift). Heights and sequences follow th
 summarised in each `STANDARDS` entry; check them against your copy of the standard.
 """
 
-import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -161,10 +160,21 @@ class CampaignResult:
 
     @property
     def worst(self) -> int:
-        return int(np.nanargmax(self.stress))
+        """Index of the first drop with the highest peak stress (see `worst_drops` for ties)."""
+        return self.worst_drops[0]
+
+    @property
+    def worst_drops(self) -> list[int]:
+        """Indices of every drop whose peak stress equals the highest to 1e-9 (symmetric drops tie exactly)."""
+        stress = np.asarray(self.stress, float)
+        if not np.any(np.isfinite(stress)):
+            return []
+        top = np.nanmax(stress)
+        return [int(i) for i in np.flatnonzero(stress >= top - 1e-9 * abs(top))]
 
     def rows(self) -> list[dict]:
         """One dict per drop, in SI-derived engineering units (MPa, microstrain, mm, deg)."""
+        worst = set(self.worst_drops)
         out = []
         for i, d in enumerate(self.drops):
             out.append(
@@ -178,7 +188,7 @@ class CampaignResult:
                     "peak_stress_MPa": float(self.stress[i]) / 1e6,
                     "peak_strain_microstrain": float(self.strain[i]) * 1e6,
                     "peak_deflection_mm": float(self.deflection[i]) * 1e3,
-                    "worst": i == self.worst,
+                    "worst": i in worst,
                     "note": d.note,
                 }
             )
@@ -186,13 +196,37 @@ class CampaignResult:
 
     def to_csv(self, path) -> Path:
         """Write `rows()` as CSV; returns the path."""
-        path = Path(path)
-        rows = self.rows()
-        with path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
-        return path
+        from ._report import write_csv
+
+        return write_csv(self.rows(), path)
+
+    def table(self) -> str:
+        """The rows as an aligned text table (what `repr` and the CLI show)."""
+        lines = [f"  {'#':>2}  {'drop':<36} {'height (m)':>10} {'angle (deg)':>11} {'reps':>4} "
+                 f"{'stress (MPa)':>12} {'strain (ue)':>11} {'defl. (mm)':>10}"]
+        ties = len(self.worst_drops) > 1
+        for r in self.rows():
+            mark = (" <- worst (tie)" if ties else " <- worst") if r["worst"] else ("  " + r["note"] if r["note"] else "")
+            lines.append(f"  {r['drop']:>2}  {r['label']:<36} {r['height_m']:>10.3f} {r['orientation_deg']:>11.2f} "
+                         f"{r['repetitions']:>4} {r['peak_stress_MPa']:>12.2f} {r['peak_strain_microstrain']:>11.1f} "
+                         f"{r['peak_deflection_mm']:>10.3f}{mark}")
+        return "\n".join(lines)
+
+    def summary(self) -> dict:
+        """Standard, drop count and the worst drop(s), units in the keys."""
+        worst = self.worst_drops
+        return {
+            "standard": self.standard,
+            "drops": len(self.drops),
+            "drops_in_plane": int(np.sum(np.isfinite(np.asarray(self.stress, float)))),
+            "worst_drops": [self.drops[i].label for i in worst],
+            "worst_peak_stress_MPa": float(self.stress[worst[0]]) / 1e6 if worst else None,
+        }
+
+    def __repr__(self) -> str:
+        from ._report import summary_text
+
+        return summary_text(self.summary(), "CampaignResult") + "\n" + self.table()
 
 
 def campaign(scene, standard: str, numerics=None, *, mass: float | None = None, height: float | None = None):

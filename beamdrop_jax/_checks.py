@@ -5,8 +5,10 @@ field, the value and the valid range. When its value is traced (inside `jit`, `v
 possible, so the same condition is returned as a bit in an integer `Flag` mask that results carry.
 """
 
+import dataclasses
 import enum
 import math
+import numbers
 
 import jax
 import jax.numpy as jnp
@@ -30,6 +32,9 @@ class Flag(enum.IntFlag):
     SOLVER_FAILED = 1024
     NEGATIVE_HEIGHT = 2048
     PIVOTING_CONTACT = 4096
+    ANGLE_RANGE = 8192
+    NONFINITE_RESULT = 16384
+    CONTACT_SEARCH_GAVE_UP = 32768
 
     @classmethod
     def describe(cls, flags) -> list[str]:
@@ -78,6 +83,67 @@ def require(value, name: str, lo=None, hi=None, *, lo_open=False, hi_open=False,
         u = f" {unit}" if unit else ""
         shown = np.array2string(np.asarray(bad).ravel()[:3], precision=6) if np.ndim(bad) else f"{float(bad):g}"
         raise ValueError(f"{name} = {shown}{u} is outside the valid range {lo_s}, {hi_s}{u} (finite values only)")
+
+
+@dataclasses.dataclass(frozen=True)
+class Range:
+    """Valid values of a float field: an interval (open or closed ends, None for unbounded), its unit, finite
+    values only. `str(Range(0, 1))` is `[0, 1]`."""
+
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    unit: str = ""
+
+    def __str__(self) -> str:
+        lo = _fmt(self.lo, self.lo_open, "lo") if self.lo is not None else "(-inf"
+        hi = _fmt(self.hi, self.hi_open, "hi") if self.hi is not None else "inf)"
+        return f"{lo}, {hi}" + (f" {self.unit}" if self.unit else "")
+
+    def require(self, value, name: str) -> None:
+        """`ValueError` naming `name` if a concrete value is non-finite or outside; no-op when traced."""
+        require(value, name, self.lo, self.hi, lo_open=self.lo_open, hi_open=self.hi_open, unit=self.unit)
+
+    def contains(self, value):
+        """Boolean array: finite and inside (traceable)."""
+        return in_range(value, self.lo, self.hi, lo_open=self.lo_open, hi_open=self.hi_open)
+
+
+def as_float(value, name: str, valid="", dtype=None):
+    """`value` as a float array, or a `ValueError` naming the field when it is not a real number (or an array of
+    them): bools, strings, None, complex numbers and objects are rejected, not coerced. Tracers pass through."""
+    if isinstance(value, jax.core.Tracer):
+        return jnp.asarray(value, dtype=dtype or float_dtype())
+    where = f"; valid: {valid}" if str(valid) else ""
+    if isinstance(value, (bool, np.bool_, str, bytes)) or value is None:
+        raise ValueError(f"{name} = {value!r} is a {type(value).__name__}, not a number{where}")
+    try:
+        arr = np.asarray(value)
+    except Exception as err:  # ragged lists and the like
+        raise ValueError(f"{name} = {value!r} is not a number or an array of numbers{where}") from None
+    if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+        kind = "bool" if arr.dtype == bool else str(arr.dtype)
+        raise ValueError(f"{name} = {value!r} holds {kind} values, not real numbers{where}")
+    return jnp.asarray(value, dtype=dtype or float_dtype())
+
+
+def as_int(value, name: str, lo: int = 1, hi: int | None = None) -> int:
+    """A Python int in [lo, hi] (bools and floats rejected), or a `ValueError` naming the field."""
+    valid = f"an int >= {lo}" if hi is None else f"an int in [{lo}, {hi}]"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{name} = {value!r}; valid: {valid}")
+    if value < lo or (hi is not None and value > hi):
+        raise ValueError(f"{name} = {value!r}; valid: {valid}")
+    return int(value)
+
+
+def as_real(value, name: str, valid: Range) -> float:
+    """A Python float inside `valid` (bools and strings rejected), or a `ValueError` naming the field."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{name} = {value!r}; valid: a number in {valid}")
+    valid.require(float(value), name)
+    return float(value)
 
 
 def flag_if(condition, flag: Flag):

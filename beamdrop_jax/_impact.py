@@ -74,6 +74,29 @@ class ImpactResult(eqx.Module):
     path: Float[Array, "3 2"]
     flags: Int[Array, ""]
 
+    def summary(self) -> dict:
+        """The impact's numbers, units in the keys (JSON-ready; `repr` prints them)."""
+        from ._report import plain
+
+        if jnp.ndim(self.mode):
+            raise ValueError("ImpactResult.summary() needs one impact (index a batched one first)")
+        return plain({
+            "impulse_Ns": self.P,
+            "normal_impulse_at_max_compression_Ns": self.Pn_compression,
+            "contact_mode": ImpactMode(int(self.mode)).label,
+            "contact_velocity_after_m_per_s": self.velocity,
+            "energy_change_J": self.energy_change,
+            "flags": Flag.describe(self.flags),
+        })
+
+    def __repr__(self) -> str:
+        from ._report import summary_text
+
+        try:
+            return summary_text(self.summary(), "ImpactResult")
+        except (ValueError, TypeError, jax.errors.ConcretizationTypeError):
+            return eqx.tree_pformat(self)
+
 
 @jax.custom_jvp
 def _div(num, den):

@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from ._checks import float_dtype
 from ._checks import Flag
-from ._scene import Scene
+from ._scene import Scene, check_scene
 from ._simulate import Numerics, _scene_peaks
 from ._superposition import superposes, superposition_table, table_numerics, table_peaks
 
@@ -147,22 +147,64 @@ class MonteCarloResult(eqx.Module):
                                       self.samples, is_leaf=lambda v: False)
 
     def _values(self, quantity):
+        if quantity not in ("stress", "strain", "deflection"):
+            raise ValueError(f"quantity = {quantity!r}; valid: stress, strain, deflection")
         values = np.asarray(getattr(self, f"peak_{quantity}"))
         return values[np.asarray(self.valid)]
 
     def summary(self, quantity: str = "stress", quantiles=(0.5, 0.9, 0.99, 0.999)) -> dict:
-        """Mean, standard deviation and quantiles of a peak over the valid drops."""
+        """Mean, standard deviation, quantiles and maximum of a peak (SI units) over the valid drops; NaN where
+        there are too few valid drops."""
         v = self._values(quantity)
-        out = {"n": int(v.size), "n_invalid": self.n_invalid, "mean": float(v.mean()), "std": float(v.std(ddof=1))}
-        out.update({f"q{q:g}": float(np.quantile(v, q)) for q in quantiles})
-        out["max"] = float(v.max())
+        nan = float("nan")
+        out = {"n": int(v.size), "n_invalid": self.n_invalid, "mean": float(v.mean()) if v.size else nan,
+               "std": float(v.std(ddof=1)) if v.size > 1 else nan}
+        out.update({f"q{q:g}": float(np.quantile(v, q)) if v.size else nan for q in quantiles})
+        out["max"] = float(v.max()) if v.size else nan
         return out
 
     def exceedance(self, limit: float, quantity: str = "stress", confidence: float = 0.95):
-        """P(peak > limit) over the valid drops with its Wilson interval: (p, (low, high), count)."""
+        """P(peak > limit) over the valid drops with its Wilson interval: (p, (low, high), count). `limit` in SI
+        units (Pa, strain as a fraction, m); p is NaN with the interval (0, 1) when no drop is valid."""
+        limit = float(limit)
+        if not (np.isfinite(limit) and limit >= 0):
+            raise ValueError(f"limit = {limit}: valid a finite {quantity} >= 0 in SI units")
+        if quantity == "strain" and limit >= 0.2:
+            raise ValueError(f"limit = {limit:g}: strain limits are fractions (2000 microstrain is 2e-3)")
         v = self._values(quantity)
         k = int(np.sum(v > limit))
-        return k / v.size, wilson_interval(k, v.size, confidence), k
+        return (k / v.size if v.size else float("nan")), wilson_interval(k, v.size, confidence), k
+
+    def invalid_reasons(self) -> dict:
+        """How many drops each `Flag` left out, by flag name."""
+        flags = np.asarray(self.flags).ravel()
+        return {f.name: int(np.sum((flags & f.value) != 0)) for f in Flag if f.value and np.any(flags & f.value)}
+
+    def report(self, limit: float | None = None, quantity: str = "strain") -> dict:
+        """Statistics of stress and strain in engineering units (MPa, microstrain), the invalid drops by reason,
+        and with `limit` (SI) the exceedance probability of `quantity` with its 95 % Wilson interval."""
+        stress, strain = self.summary("stress"), self.summary("strain")
+        out = {"drops": self.n, "drops_outside_the_model": self.n_invalid}
+        if self.n_invalid:
+            out["outside_the_model_by_reason"] = self.invalid_reasons()
+        out |= {
+            "peak_stress_mean_MPa": stress["mean"] / 1e6, "peak_stress_std_MPa": stress["std"] / 1e6,
+            "peak_stress_median_MPa": stress["q0.5"] / 1e6, "peak_stress_q99_MPa": stress["q0.99"] / 1e6,
+            "peak_stress_max_MPa": stress["max"] / 1e6,
+            "peak_strain_median_microstrain": strain["q0.5"] * 1e6,
+            "peak_strain_q99_microstrain": strain["q0.99"] * 1e6, "peak_strain_max_microstrain": strain["max"] * 1e6,
+        }
+        if limit is not None:
+            unit, scale = {"stress": ("MPa", 1e-6), "strain": ("microstrain", 1e6), "deflection": ("mm", 1e3)}[quantity]
+            p, (lo, hi), k = self.exceedance(limit, quantity)
+            out |= {f"limit_{unit}": limit * scale, "drops_over_limit": k, "probability_over_limit": p,
+                    "probability_95pct_interval": [lo, hi]}
+        return out
+
+    def __repr__(self) -> str:
+        from ._report import summary_text
+
+        return summary_text(self.report(), "MonteCarloResult")
 
 
 def montecarlo_numerics(scene: Scene, distribution: "DropDistribution | None" = None) -> Numerics:
@@ -270,6 +312,11 @@ def montecarlo(
         raise ValueError(f"n = {n!r}; valid: an int >= 1")
     n = int(n)
     distribution = DropDistribution() if distribution is None else distribution
+    if not isinstance(distribution, DropDistribution):
+        raise ValueError(f"distribution must be a DropDistribution, got {type(distribution).__name__}")
+    if not distribution.varied():
+        raise ValueError("DropDistribution varies no field: every drop would be the same (use simulate for one drop)")
+    check_scene(scene)
     cannot = _table_cannot(Numerics() if numerics is None else numerics, distribution)
     if superpose and cannot:
         raise ValueError(f"montecarlo(superpose=True) needs one pulse shape for every drop, but {cannot}")

@@ -129,6 +129,25 @@ class PlacementResult(eqx.Module):
     n_drops: int = eqx.field(static=True)
     objective: str = eqx.field(static=True)
 
+    def summary(self, scene: Scene | None = None) -> dict:
+        """Before (the scene's placement, when given) and after, units in the keys."""
+        from ._report import plain
+
+        def where(p, when):
+            return {f"{when}_centre_mm": p.centre * 1e3, f"{when}_angle_deg": jnp.degrees(p.angle)}
+
+        out = {"objective": f"{self.objective} peak stress over {self.n_drops} drops"}
+        if scene is not None:
+            out |= where(scene.placement, "before")
+        out |= {"before_objective_MPa": self.initial_value / 1e6, **where(self.placement, "after"),
+                "after_objective_MPa": self.value / 1e6, "evaluations": self.n_evaluations}
+        return plain(out)
+
+    def __repr__(self) -> str:
+        from ._report import summary_text
+
+        return summary_text(self.summary(), "PlacementResult")
+
 
 def optimize_placement(
     scene: Scene,

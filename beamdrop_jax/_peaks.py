@@ -3,7 +3,7 @@
 A coarse grid finds candidate peaks (the largest local maxima in time of the spatial envelope); each is refined
 from the vertex of the parabolas through its grid neighbours by Newton's method on the modal series, steps scaled
 into a trust radius of one grid cell that halves when a step does not gain; the largest wins, never below its grid
-value. The peak's gradient is the gradient at the
+value. Of candidates that tie to 1e-9 the earliest is reported. The peak's gradient is the gradient at the
 maximiser (envelope theorem), so the maximiser enters under `stop_gradient`, except at the window's end, where the
 window's own dependence on the parameters counts.
 """
@@ -160,7 +160,10 @@ def find_peak(
 
     starts = (x0, t0, sign0, x[where_x], t[idx], A[where_x, idx])
     p_all, f_all, gain_all = jax.vmap(refine_one)(*stop_gradient(starts))
-    best = jnp.argmax(f_all)
+    # Of candidates that tie (an undamped board repeats its peak every period, mirror images tie exactly), report
+    # the earliest: the first time the board sees that stress.
+    tied = f_all >= jnp.max(f_all) * (1.0 - 1e-9)
+    best = jnp.argmin(jnp.where(tied, p_all[:, 1], jnp.inf))
     p_best = jax.lax.stop_gradient(p_all[best])
     x_star = p_best[0]
     # A peak at the window's end moves with the window (which depends on the board): keep that dependence.

@@ -97,19 +97,27 @@ def _impact_of(impacts, t):
 
 
 def plot_deflected_board(fields, response, *, ax=None):
-    """Deflection relative to the chord AB at the time of peak stress, with the peak location marked."""
-    fig, ax = _axes(ax, (6.5, 3.5))
-    t_idx = int(np.abs(np.asarray(fields.t) - float(response.peak.t)).argmin())
+    """Deflection relative to the chord AB at the time of peak deflection and at the time of peak stress, with
+    both peaks' positions marked (end A is x = 0). Says so when the deflection exceeds the board's thickness,
+    where linear theory stops holding."""
+    fig, ax = _axes(ax, (7.0, 4.0))
     x_mm = np.asarray(fields.x) * 1e3
-    u_mm = np.asarray(fields.deflection)[:, t_idx] * 1e3
-    ax.plot(x_mm, u_mm, color="tab:blue", lw=2, label=f"t = {float(fields.t[t_idx]) * 1e3:.3f} ms")
-    ax.plot([x_mm[0], x_mm[-1]], [0, 0], "k^", ms=10, label="pinned supports A, B")
-    ax.axvline(float(response.peak.x) * 1e3, color="tab:red", ls="--", lw=1, label="peak stress location")
+    peak = response.peak
+    for when, style, what in ((float(peak.deflection_t), "tab:blue", "peak deflection"),
+                              (float(peak.t), "tab:red", "peak stress")):
+        j = int(np.abs(np.asarray(fields.t) - when).argmin())
+        u_mm = np.asarray(fields.deflection)[:, j] * 1e3
+        ax.plot(x_mm, u_mm, color=style, lw=2, label=f"at {what}, t = {float(fields.t[j]) * 1e3:.3f} ms")
+    ax.plot(float(peak.deflection_x) * 1e3, 0, "|", color="tab:blue", ms=14,
+            label=f"peak deflection {float(peak.deflection) * 1e3:.3g} mm at x = {float(peak.deflection_x) * 1e3:.1f} mm")
+    ax.axvline(float(peak.x) * 1e3, color="tab:red", ls="--", lw=1,
+               label=f"peak stress {float(peak.stress) / 1e6:.3g} MPa at x = {float(peak.x) * 1e3:.1f} mm")
+    ax.plot([x_mm[0], x_mm[-1]], [0, 0], "k^", ms=10, label="supports: end A (x = 0), end B")
     ax.axhline(0, color="0.6", lw=0.8)
     ax.set_xlabel("position along the board from end A (mm)")
-    ax.set_ylabel("deflection from chord AB (mm)")
-    ax.set_title("Deflected board at the time of peak stress")
-    ax.legend(fontsize=8)
+    ax.set_ylabel("deflection from chord AB along the board normal (mm)")
+    ax.set_title("Deflected board (relative to its moving supports)")
+    ax.legend(fontsize=7, loc="best")
     return fig
 
 
@@ -122,6 +130,105 @@ def _draw_housing(ax, scene, placement, **style):
     ax.add_patch(Rectangle((-W / 2, -H / 2), W, H, fill=False, lw=1.5, color="0.3"))
     ends = np.asarray(board_ends(placement, scene.board.length)) * 1e3
     ax.plot(ends[:, 0], ends[:, 1], **style)
+
+
+def plot_scene(scene, response=None, *, ax=None):
+    """The scene at the instant of impact, in the plane of the model: the housing (its width and height; the
+    device's third dimension and the board's width point out of the page) with its lowest corner S on the ground,
+    the centre of mass G, the board from end A to end B with its supports, the velocity of G before impact and the
+    ground's impulse at S (from `response`, or computed)."""
+    from matplotlib.patches import Polygon
+
+    from ._kinematics import body_axes, housing_impact, lowest_corner
+    from ._scene import board_ends
+
+    fig, ax = _axes(ax, (8.0, 5.2))
+    th = float(scene.drop.orientation)
+    e1, e2 = np.asarray(body_axes(th))
+    W, H = float(scene.housing.width), float(scene.housing.height)
+    corner, r, _ = (np.asarray(v) for v in lowest_corner(scene))
+    G = np.array([0.0, 0.0]) + r  # ground frame with the striking corner S at the origin
+
+    def ground(q):
+        q = np.asarray(q, float)
+        return (G + q[..., :1] * e1 + q[..., 1:] * e2) * 1e3
+
+    box = ground(np.array([[W / 2, H / 2], [-W / 2, H / 2], [-W / 2, -H / 2], [W / 2, -H / 2]]))
+    ax.add_patch(Polygon(box, closed=True, fc="0.93", ec="0.25", lw=1.5, label="housing (rigid)"))
+    ends = ground(np.asarray(board_ends(scene.placement, scene.board.length)))
+    ax.plot(ends[:, 0], ends[:, 1], color="tab:green", lw=4, solid_capstyle="butt", label="board")
+    ax.plot(ends[:, 0], ends[:, 1], "^", color="tab:green", mec="k", ms=10, label="supports (pinned)")
+    ax.annotate("A", ends[0], xytext=(-12, 6), textcoords="offset points", fontsize=11, weight="bold")
+    ax.annotate("B", ends[1], xytext=(6, 6), textcoords="offset points", fontsize=11, weight="bold")
+    ax.plot(*G * 1e3, "ko", ms=7, mfc="w", mew=2)
+    ax.annotate("G", G * 1e3, xytext=(6, -12), textcoords="offset points", fontsize=11)
+    ax.plot(0, 0, "o", color="tab:red", ms=9)
+    ax.annotate("S (strikes)", (0, 0), xytext=(-70, 6), textcoords="offset points", color="tab:red", fontsize=10)
+    size = 1e3 * max(W, H)
+    lo_x, hi_x = min(box[:, 0].min(), 0) - 0.15 * size, max(box[:, 0].max(), 0) + 0.15 * size
+    ax.fill_between([lo_x, hi_x], [-0.06 * size] * 2, [0, 0], color="0.55", hatch="///", alpha=0.5, lw=0)
+    hit = response.housing if response is not None and response.housing is not None else housing_impact(scene)
+    v = np.array([float(scene.drop.horizontal_speed), -float(np.sqrt(2 * 9.80665 * float(scene.drop.height)))])
+    speed = np.linalg.norm(v)
+    if speed > 0:
+        arrow = v / speed * 0.3 * size
+        ax.annotate("", G * 1e3 + arrow, G * 1e3, arrowprops=dict(arrowstyle="-|>", color="tab:blue", lw=2))
+        ax.annotate(f"v_G = {speed:.2f} m/s", G * 1e3 + arrow, xytext=(6, 0), textcoords="offset points",
+                    color="tab:blue", fontsize=9)
+    P = np.asarray(hit.impact.P)
+    if np.linalg.norm(P) > 0:
+        arrow = P / np.linalg.norm(P) * 0.3 * size
+        ax.annotate("", arrow, (0, 0), arrowprops=dict(arrowstyle="-|>", color="tab:red", lw=2))
+        ax.annotate(f"impulse ({P[0]:.3g}, {P[1]:.3g}) N s", arrow, xytext=(6, 0), textcoords="offset points",
+                    color="tab:red", fontsize=9)
+    ax.set_aspect("equal")
+    ax.set_xlim(lo_x, hi_x)
+    ax.set_ylim(-0.08 * size, box[:, 1].max() + 0.1 * size)
+    ax.set_xlabel("ground x (mm)")
+    ax.set_ylabel("height above ground (mm)")
+    ax.set_title(
+        f"Housing {W * 1e3:g} x {H * 1e3:g} mm, {float(scene.housing.mass) * 1e3:g} g, dropped "
+        f"{float(scene.drop.height):g} m at {np.degrees(th):.1f} deg; board {float(scene.board.length) * 1e3:g} mm",
+        fontsize=10,
+    )
+    ax.text(0.01, 0.99, "plane of the model: the housing's width and height;\nthe board bends in this plane, "
+            "its width points out of the page", transform=ax.transAxes, fontsize=7.5, color="0.35", va="top")
+    ax.legend(fontsize=8, loc="upper right")
+    return fig
+
+
+def plot_impacts(scene, response):
+    """The impact of a drop: the first impact's Routh diagram; with clattering, a second panel with every
+    impact's time, approach speed and normal impulse."""
+    import matplotlib.pyplot as plt
+
+    from ._kinematics import housing_impact
+
+    hit = response.housing if response.housing is not None else housing_impact(scene)
+    impacts = response.impacts
+    count = 1 if impacts is None else int(impacts.count)
+    args = (hit.B, hit.v0, scene.contact.friction, scene.contact.restitution)
+    if count == 1:
+        return plot_impact(*args)
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(13, 4.8), layout="constrained")
+    plot_impact(*args, ax=ax1, title=f"Impact 1 of {count}: {ImpactMode(int(hit.impact.mode)).label}")
+    t = np.asarray(impacts.t)[:count] * 1e3
+    Pn = np.asarray(impacts.P)[:count, 1]
+    speed = np.asarray(impacts.approach_speed)[:count]
+    ax2.stem(t, Pn, linefmt="tab:red", markerfmt="o", basefmt="0.6", label="normal impulse Pn (N s)")
+    ax2.set_xlabel("time after the first impact (ms)")
+    ax2.set_ylabel("normal impulse Pn (N s)", color="tab:red")
+    twin = ax2.twinx()
+    twin.plot(t, speed, "s", color="tab:blue", ms=7, label="approach speed (m/s)")
+    twin.set_ylabel("corner approach speed (m/s)", color="tab:blue")
+    twin.set_ylim(0, 1.15 * speed.max())
+    ax2.set_ylim(0, 1.15 * Pn.max())
+    for i in range(count):
+        q = np.asarray(impacts.corner[i]) * 1e3
+        ax2.annotate(f"#{i + 1}\ncorner ({q[0]:.0f}, {q[1]:.0f}) mm", (t[i], Pn[i]), xytext=(0, 8),
+                     textcoords="offset points", ha="center", fontsize=8)
+    ax2.set_title(f"Clattering: {count} impacts")
+    return fig
 
 
 def plot_placement(scene, result, landscape, *, axes=None):
@@ -191,32 +298,47 @@ def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None):
     return fig
 
 
-def plot_campaign(result, *, ax=None, limit: float | None = None):
-    """Bar chart of a `CampaignResult`: peak stress (MPa) of every drop, coloured by attitude, the worst drop
-    outlined, drops the plane cannot represent marked n/a; `limit` (Pa) draws an allowable stress."""
+def plot_campaign(result, *, ax=None, limit: float | None = None, scene: str | None = None):
+    """Bar chart of a `CampaignResult`: peak stress (MPa) of every drop, coloured by attitude, every drop tied
+    for the worst outlined, a zero peak labelled 0, drops the plane cannot represent marked n/a; `limit` (Pa) draws
+    an allowable stress; `scene` names the scene in the title."""
+    import textwrap
+
     import matplotlib.patches as mpatches
 
+    from ._campaign import STANDARDS
+
     n = len(result.drops)
-    fig, ax = _axes(ax, figsize=(max(6.0, 0.38 * n + 2.0), 4.5))
+    fig, ax = _axes(ax, figsize=(max(6.5, 0.42 * n + 2.5), 5.2))
     colours = {"face": "tab:blue", "edge": "tab:orange", "corner": "tab:green", "board": "tab:purple"}
     stress = np.asarray(result.stress, float) / 1e6
-    shown = np.nan_to_num(stress)
-    bars = ax.bar(range(n), shown, color=[colours[d.attitude] for d in result.drops])
-    worst = result.worst
-    bars[worst].set_edgecolor("black")
-    bars[worst].set_linewidth(2.0)
-    top = float(np.nanmax(stress)) if np.any(np.isfinite(stress)) else 1.0
-    for i, d in enumerate(result.drops):
+    bars = ax.bar(range(n), np.nan_to_num(stress), color=[colours[d.attitude] for d in result.drops], width=0.7)
+    worst = result.worst_drops
+    top = float(np.nanmax(stress)) if worst else 1.0
+    top = top if top > 0 else 1.0
+    for i in worst:
+        bars[i].set_edgecolor("black")
+        bars[i].set_linewidth(2.0)
+    for i in range(n):
         if not np.isfinite(stress[i]):
             ax.text(i, 0.02 * top, "n/a", ha="center", va="bottom", rotation=90, fontsize=8, color="0.4")
-    ax.annotate(f"worst: {stress[worst]:.1f} MPa", (worst, stress[worst]), xytext=(0, 6),
-                textcoords="offset points", ha="center", fontsize=9)
+        elif stress[i] == 0.0:
+            ax.text(i, 0.02 * top, "0", ha="center", va="bottom", fontsize=8)
+    if worst:
+        tie = f" ({len(worst)} drops tie)" if len(worst) > 1 else ""
+        ax.annotate(f"worst: {stress[worst[0]]:.1f} MPa{tie}", (worst[0], stress[worst[0]]), xytext=(0, 6),
+                    textcoords="offset points", ha="left", fontsize=9)
     if limit is not None:
         ax.axhline(limit / 1e6, color="tab:red", ls="--", lw=1.2, label=f"limit {limit / 1e6:g} MPa")
-    ax.set_xticks(range(n), [d.label for d in result.drops], rotation=70, ha="right", fontsize=8)
+    ax.set_xticks(range(n), [textwrap.shorten(d.label, 28) for d in result.drops], rotation=60, ha="right",
+                  fontsize=8)
     ax.set_ylabel("peak bending stress (MPa)")
-    ax.set_ylim(0, 1.15 * top)
-    ax.set_title(f"{result.standard}: {n} drops")
+    ax.set_ylim(0, 1.2 * top)
+    name = STANDARDS.get(result.standard, result.standard).split(":")[0].split(" (")[0]
+    heights = sorted({round(d.height, 4) for d in result.drops if np.isfinite(d.height)})
+    where = (f"from {', '.join(f'{h:g}' for h in heights)} m" if heights else "board-level half-sine at both supports")
+    title = f"{name}: {n} drop{'s' if n != 1 else ''} {where}" + (f", scene {scene}" if scene else "")
+    ax.set_title("\n".join(textwrap.wrap(title, 70)), fontsize=10)
     handles = [mpatches.Patch(color=c, label=a) for a, c in colours.items()
                if any(d.attitude == a for d in result.drops)]
     ax.legend(handles=handles + ([ax.lines[-1]] if limit is not None else []), fontsize=8, loc="upper right")

@@ -1,27 +1,58 @@
 """The scene: housing, board, where the board sits, how the device lands, and the ground contact.
 
-Every physical number is a JAX array field, so `jax.grad` reaches it and a batch of scenes can be `vmap`ped.
-Construction checks concrete values eagerly (`ValueError` naming the field and the valid range); traced values are
-checked by `scene_flags`, which results carry.
+Every physical number is a JAX array field, so `jax.grad` reaches it and a batch of scenes can be `vmap`ped. Each
+class lists its fields' valid ranges in `RANGES` (one table used by the constructors, `Scene.replace`, the scene
+files and `scene_flags`). Construction checks concrete values eagerly (`ValueError` naming the field, its value and
+the valid range; a bool or a string where a number is meant is an error, never coerced); traced values are checked
+by `scene_flags`, which results carry.
 """
 
 import functools
-import importlib.resources
-import math
-import tomllib
-from pathlib import Path
+from typing import ClassVar
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import float_dtype
-from ._checks import DEG, Flag, combine, flag_if, in_range, is_concrete, raise_if_flagged, require
+from ._checks import DEG, Flag, Range, as_float, combine, flag_if, is_concrete, raise_if_flagged, require
+
+# Angles beyond this many radians (about 1600 turns) are rejected: no drop needs them, and the sine and cosine of
+# larger arguments lose their argument reduction in the fast polynomial the response uses.
+MAX_ANGLE = 1.0e4
+
+def _positive(unit):
+    return Range(0.0, lo_open=True, unit=unit), Flag.NONPOSITIVE_SIZE
 
 
-def _f(x):
-    return jnp.asarray(x, dtype=float_dtype())
+_ANGLE = (Range(-MAX_ANGLE, MAX_ANGLE, unit="rad"), Flag.ANGLE_RANGE)
+_ANY = {unit: (Range(unit=unit), Flag.NONFINITE_INPUT) for unit in ("m", "rad/s", "m/s")}
+
+
+def _init_fields(module, values: dict):
+    """Set each field from `values` as a float array, rejecting non-numbers with the field's name and range."""
+    cls = type(module)
+    for name, value in values.items():
+        setattr(module, name, as_float(value, f"{cls.__name__}.{name}", cls.RANGES[name][0]))
+
+
+def _check_ranges(module, skip=()):
+    cls = type(module)
+    for name, (valid, _) in cls.RANGES.items():
+        if name not in skip:
+            valid.require(getattr(module, name), f"{cls.__name__}.{name}")
+
+
+def _range_flags(module):
+    def ok(name, valid):
+        inside = valid.contains(getattr(module, name))
+        return jnp.all(inside, axis=-1) if name in VECTOR_FIELDS else inside
+
+    return combine(*(flag_if(~ok(name, valid), flag) for name, (valid, flag) in type(module).RANGES.items()))
+
+
+VECTOR_FIELDS = {"centre"}  # fields with a trailing axis of their own (a pair), not a batch axis
 
 
 class Housing(eqx.Module):
@@ -35,19 +66,21 @@ class Housing(eqx.Module):
     mass: Float[Array, ""]
     radius_of_gyration: Float[Array, ""]
 
+    RANGES: ClassVar[dict] = {
+        "width": _positive("m"),
+        "height": _positive("m"),
+        "mass": _positive("kg"),
+        "radius_of_gyration": _positive("m"),
+    }
+
     def __init__(self, width=0.15, height=0.075, mass=0.18, radius_of_gyration=None):
-        self.width = _f(width)
-        self.height = _f(height)
-        self.mass = _f(mass)
+        _init_fields(self, dict(width=width, height=height, mass=mass))
         if radius_of_gyration is None:
             radius_of_gyration = jnp.sqrt((self.width**2 + self.height**2) / 12.0)
-        self.radius_of_gyration = _f(radius_of_gyration)
+        _init_fields(self, dict(radius_of_gyration=radius_of_gyration))
 
     def __check_init__(self):
-        require(self.width, "Housing.width", 0.0, lo_open=True, unit="m")
-        require(self.height, "Housing.height", 0.0, lo_open=True, unit="m")
-        require(self.mass, "Housing.mass", 0.0, lo_open=True, unit="kg")
-        require(self.radius_of_gyration, "Housing.radius_of_gyration", 0.0, lo_open=True, unit="m")
+        _check_ranges(self)
 
     @property
     def inertia(self) -> Float[Array, ""]:
@@ -70,6 +103,17 @@ class Board(eqx.Module):
     axial_force: Float[Array, ""]
     damping_ratio: Float[Array, ""]
 
+    RANGES: ClassVar[dict] = {
+        "length": _positive("m"),
+        "thickness": _positive("m"),
+        "width": _positive("m"),
+        "youngs_modulus": _positive("Pa"),
+        "density": _positive("kg/m^3"),
+        # The buckling bound depends on the other fields: checked in __check_init__ and `flags`.
+        "axial_force": (Range(unit="N"), Flag.NONFINITE_INPUT),
+        "damping_ratio": (Range(0.0, 1.0, hi_open=True), Flag.DAMPING_RANGE),
+    }
+
     def __init__(
         self,
         length=0.10,
@@ -80,23 +124,14 @@ class Board(eqx.Module):
         axial_force=0.0,
         damping_ratio=0.0,
     ):
-        self.length = _f(length)
-        self.thickness = _f(thickness)
-        self.width = _f(width)
-        self.youngs_modulus = _f(youngs_modulus)
-        self.density = _f(density)
-        self.axial_force = _f(axial_force)
-        self.damping_ratio = _f(damping_ratio)
+        _init_fields(self, dict(length=length, thickness=thickness, width=width, youngs_modulus=youngs_modulus,
+                                density=density, axial_force=axial_force, damping_ratio=damping_ratio))
 
     def __check_init__(self):
-        require(self.length, "Board.length", 0.0, lo_open=True, unit="m")
-        require(self.thickness, "Board.thickness", 0.0, lo_open=True, unit="m")
-        require(self.width, "Board.width", 0.0, lo_open=True, unit="m")
-        require(self.youngs_modulus, "Board.youngs_modulus", 0.0, lo_open=True, unit="Pa")
-        require(self.density, "Board.density", 0.0, lo_open=True, unit="kg/m^3")
-        require(self.damping_ratio, "Board.damping_ratio", 0.0, 1.0, hi_open=True)
-        if is_concrete(self.axial_force, self.length, self.thickness, self.width, self.youngs_modulus):
-            require(self.axial_force, "Board.axial_force", -float(self.buckling_force), lo_open=True, unit="N")
+        _check_ranges(self)
+        if is_concrete(self):
+            require(self.axial_force, "Board.axial_force", -float(jnp.max(self.buckling_force)), lo_open=True,
+                    unit="N")
 
     @property
     def bending_stiffness(self) -> Float[Array, ""]:
@@ -111,17 +146,11 @@ class Board(eqx.Module):
     @property
     def buckling_force(self) -> Float[Array, ""]:
         """Euler load EI pi^2 / L^2 (N): compression of this size buckles the board."""
-        return self.bending_stiffness * math.pi**2 / self.length**2
+        return self.bending_stiffness * jnp.pi**2 / self.length**2
 
     def flags(self):
         """Traceable checks of this board (int32 mask of `Flag`)."""
-        sizes = [self.length, self.thickness, self.width, self.youngs_modulus, self.density]
-        return combine(
-            *(flag_if(~in_range(v, 0.0, lo_open=True), Flag.NONPOSITIVE_SIZE) for v in sizes),
-            flag_if(~in_range(self.damping_ratio, 0.0, 1.0, hi_open=True), Flag.DAMPING_RANGE),
-            flag_if(~(self.axial_force > -self.buckling_force), Flag.BUCKLED),
-            flag_if(~jnp.isfinite(self.axial_force), Flag.NONFINITE_INPUT),
-        )
+        return combine(_range_flags(self), flag_if(~(self.axial_force > -self.buckling_force), Flag.BUCKLED))
 
 
 class Placement(eqx.Module):
@@ -130,15 +159,15 @@ class Placement(eqx.Module):
     centre: Float[Array, "2"]
     angle: Float[Array, ""]
 
+    RANGES: ClassVar[dict] = {"centre": _ANY["m"], "angle": _ANGLE}
+
     def __init__(self, centre=(0.0, 0.0), angle=0.0):
-        self.centre = _f(centre)
-        self.angle = _f(angle)
+        _init_fields(self, dict(centre=centre, angle=angle))
 
     def __check_init__(self):
-        if is_concrete(self.centre) and jnp.shape(self.centre)[-1:] != (2,):
-            raise ValueError(f"Placement.centre must have shape (2,), got {jnp.shape(self.centre)}")
-        require(self.centre, "Placement.centre", unit="m")
-        require(self.angle, "Placement.angle", unit="rad")
+        if jnp.shape(self.centre)[-1:] != (2,):
+            raise ValueError(f"Placement.centre must be a pair (c1, c2) in m, got shape {jnp.shape(self.centre)}")
+        _check_ranges(self)
 
 
 class Drop(eqx.Module):
@@ -150,17 +179,18 @@ class Drop(eqx.Module):
     spin: Float[Array, ""]
     horizontal_speed: Float[Array, ""]
 
+    RANGES: ClassVar[dict] = {
+        "orientation": _ANGLE,
+        "height": (Range(0.0, unit="m"), Flag.NEGATIVE_HEIGHT),
+        "spin": _ANY["rad/s"],
+        "horizontal_speed": _ANY["m/s"],
+    }
+
     def __init__(self, orientation=30 * DEG, height=1.5, spin=0.0, horizontal_speed=0.0):
-        self.orientation = _f(orientation)
-        self.height = _f(height)
-        self.spin = _f(spin)
-        self.horizontal_speed = _f(horizontal_speed)
+        _init_fields(self, dict(orientation=orientation, height=height, spin=spin, horizontal_speed=horizontal_speed))
 
     def __check_init__(self):
-        require(self.orientation, "Drop.orientation", unit="rad")
-        require(self.height, "Drop.height", 0.0, unit="m")
-        require(self.spin, "Drop.spin", unit="rad/s")
-        require(self.horizontal_speed, "Drop.horizontal_speed", unit="m/s")
+        _check_ranges(self)
 
 
 class Contact(eqx.Module):
@@ -171,30 +201,36 @@ class Contact(eqx.Module):
     restitution: Float[Array, ""]
     duration: Float[Array, ""]
 
+    RANGES: ClassVar[dict] = {
+        "friction": (Range(0.0), Flag.FRICTION_NEGATIVE),
+        "restitution": (Range(0.0, 1.0), Flag.RESTITUTION_RANGE),
+        "duration": (Range(0.0, unit="s"), Flag.DURATION_NEGATIVE),
+    }
+
     def __init__(self, friction=0.3, restitution=0.5, duration=5e-4):
-        self.friction = _f(friction)
-        self.restitution = _f(restitution)
-        self.duration = _f(duration)
+        _init_fields(self, dict(friction=friction, restitution=restitution, duration=duration))
 
     def __check_init__(self):
-        require(self.friction, "Contact.friction", 0.0)
-        require(self.restitution, "Contact.restitution", 0.0, 1.0)
-        require(self.duration, "Contact.duration", 0.0, unit="s")
+        _check_ranges(self)
+
+
+SECTIONS = {"housing": Housing, "board": Board, "placement": Placement, "drop": Drop, "contact": Contact}
 
 
 def board_ends(placement: Placement, length) -> Float[Array, "2 2"]:
-    """Board ends A and B (rows) in housing axes from G, m."""
-    axis = jnp.stack([jnp.cos(placement.angle), jnp.sin(placement.angle)])
-    half = 0.5 * length * axis
-    return jnp.stack([placement.centre - half, placement.centre + half])
+    """Board ends A and B (rows) in housing axes from G, m (a leading batch axis carries through)."""
+    angle = jnp.asarray(placement.angle)
+    axis = jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=-1)
+    half = 0.5 * jnp.asarray(length)[..., None] * axis
+    return jnp.stack([placement.centre - half, placement.centre + half], axis=-2)
 
 
 def _board_outside(scene) -> jax.Array:
     ends = board_ends(scene.placement, scene.board.length)
-    half = jnp.stack([scene.housing.width, scene.housing.height]) / 2
+    half = jnp.stack([scene.housing.width, scene.housing.height], axis=-1)[..., None, :] / 2
     # A relative slack absorbs round-off for a board that spans the housing exactly.
-    slack = 1e-9 * jnp.max(half)
-    return jnp.any(jnp.abs(ends) > half + slack)
+    slack = 1e-9 * jnp.max(half, axis=(-2, -1), keepdims=True)
+    return jnp.any(jnp.abs(ends) > half + slack, axis=(-2, -1))
 
 
 class Scene(eqx.Module):
@@ -214,136 +250,78 @@ class Scene(eqx.Module):
         self.contact = Contact() if contact is None else contact
 
     def __check_init__(self):
-        if is_concrete(self) and bool(jnp.any(_board_outside(self))):
-            ends = board_ends(self.placement, self.board.length)
-            w, h = float(self.housing.width), float(self.housing.height)
-            raise ValueError(
-                f"Placement puts the board ends at {ends.tolist()} (m, housing axes from G), outside the housing: "
-                f"each end must satisfy |q1| <= {w / 2:g} and |q2| <= {h / 2:g} (Housing.width/2, Housing.height/2)"
-            )
+        _check_fits(self)
 
     @classmethod
     def default(cls) -> "Scene":
         """The embedded phone-like scene (`beamdrop_jax/scenes/default.toml`)."""
+        from ._scenefile import load_scene
+
         return load_scene("default")
 
     def replace(self, **paths) -> "Scene":
-        """A copy with fields replaced by dotted path, e.g. `scene.replace(**{"drop.height": 1.0})`."""
+        """A copy with fields replaced by dotted path, e.g. `scene.replace(**{"drop.height": 1.0})`.
+
+        Values are checked as the constructors check them (type, range; the board inside the housing and below
+        its buckling load), naming the path; arrays with a leading batch axis are welcome."""
         out = self
         for path, value in paths.items():
-            parts = path.split(".")
-
-            def where(s, parts=parts):
-                for p in parts:
-                    s = getattr(s, p)
-                return s
-
-            out = eqx.tree_at(where, out, jnp.asarray(value, dtype=float_dtype()))
+            cls, name = _field_at(path)
+            valid = cls.RANGES[name][0]
+            new = as_float(value, path, valid)
+            valid.require(new, path)
+            section = path.split(".")[0]
+            out = eqx.tree_at(lambda s, section=section, name=name: getattr(getattr(s, section), name), out, new)
+        if is_concrete(out):
+            out.board.__check_init__()
+            _check_fits(out)
         return out
+
+
+def _field_at(path: str):
+    """(class, field name) of a dotted scene path, or a `ValueError` listing the valid paths."""
+    import difflib
+
+    valid = [f"{section}.{name}" for section, cls in SECTIONS.items() for name in cls.RANGES]
+    parts = path.split(".")
+    if len(parts) != 2 or parts[0] not in SECTIONS or parts[1] not in SECTIONS[parts[0]].RANGES:
+        close = difflib.get_close_matches(path, valid, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else f"; valid: {', '.join(valid)}"
+        raise ValueError(f"no scene field {path!r}{hint}")
+    return SECTIONS[parts[0]], parts[1]
+
+
+def _check_fits(scene) -> None:
+    if not (is_concrete(scene) and bool(jnp.any(_board_outside(scene)))):
+        return
+    ends = np.asarray(board_ends(scene.placement, scene.board.length))
+    w, h = (float(np.max(v)) for v in (scene.housing.width, scene.housing.height))
+    raise ValueError(
+        f"Placement puts the board ends at {np.round(ends.reshape(-1, 2, 2)[0], 6).tolist()} (m, housing axes from "
+        f"G), outside the housing: each end must satisfy |q1| <= {w / 2:g} and |q2| <= {h / 2:g} "
+        "(Housing.width/2, Housing.height/2)"
+    )
 
 
 def scene_flags(scene: Scene):
     """Traceable validation of a scene: an int32 mask of `Flag` bits (0 when everything is valid)."""
-    h, c, d = scene.housing, scene.contact, scene.drop
     # A chain of ands, not a stack: under vmap a stack broadcasts every fixed field to the batch.
     finite = functools.reduce(jnp.logical_and, [jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(scene)])
     return combine(
         flag_if(~finite, Flag.NONFINITE_INPUT),
-        *(
-            flag_if(~in_range(v, 0.0, lo_open=True), Flag.NONPOSITIVE_SIZE)
-            for v in (h.width, h.height, h.mass, h.radius_of_gyration)
-        ),
+        *(_range_flags(getattr(scene, section)) for section in SECTIONS if section != "board"),
         scene.board.flags(),
-        flag_if(~in_range(c.restitution, 0.0, 1.0), Flag.RESTITUTION_RANGE),
-        flag_if(~in_range(c.friction, 0.0), Flag.FRICTION_NEGATIVE),
-        flag_if(~in_range(c.duration, 0.0), Flag.DURATION_NEGATIVE),
-        flag_if(~in_range(d.height, 0.0), Flag.NEGATIVE_HEIGHT),
         flag_if(_board_outside(scene), Flag.BOARD_OUTSIDE_HOUSING),
     )
 
 
 def check_scene(scene: Scene) -> None:
-    """Raise `ValueError` if a concrete scene has any flagged problem (no-op under tracing)."""
-    raise_if_flagged(scene_flags(scene), "invalid scene")
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# TOML in and out. Angles are stored in degrees under keys ending in `_deg`.
-
-_ANGLE_KEYS = {("placement", "angle"), ("drop", "orientation")}
-_SECTIONS = {"housing": Housing, "board": Board, "placement": Placement, "drop": Drop, "contact": Contact}
-
-
-def _scene_path(path) -> Path:
-    text = str(path)
-    if not text.endswith(".toml") and "/" not in text and "\\" not in text:
-        resource = importlib.resources.files("beamdrop_jax") / "scenes" / f"{text}.toml"
-        if resource.is_file():
-            return Path(str(resource))
-        names = sorted(p.name[:-5] for p in (importlib.resources.files("beamdrop_jax") / "scenes").iterdir()
-                       if p.name.endswith(".toml"))
-        raise FileNotFoundError(f"no embedded scene {text!r}; embedded scenes: {', '.join(names)}")
-    return Path(path)
-
-
-def embedded_scenes() -> list[str]:
-    """Names of the scenes shipped in the package (`load_scene(name)` loads one)."""
-    folder = importlib.resources.files("beamdrop_jax") / "scenes"
-    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
-
-
-def scene_from_dict(data: dict) -> Scene:
-    """Build a scene from a TOML-shaped dict (sections housing, board, placement, drop, contact)."""
-    unknown = set(data) - set(_SECTIONS)
-    if unknown:
-        raise ValueError(f"unknown scene section(s) {sorted(unknown)}; valid: {sorted(_SECTIONS)}")
-    parts = {}
-    for section, cls in _SECTIONS.items():
-        kwargs = {}
-        for key, value in data.get(section, {}).items():
-            if key.endswith("_deg") and (section, key[:-4]) in _ANGLE_KEYS:
-                kwargs[key[:-4]] = float(value) * DEG
-            else:
-                kwargs[key] = value
-        try:
-            parts[section] = cls(**kwargs)
-        except TypeError as err:
-            raise ValueError(f"[{section}]: {err}") from None
-    return Scene(**parts)
-
-
-def load_scene(path) -> Scene:
-    """Load a scene from a TOML file, or an embedded scene by name (`"default"`, `"jedec"`, `"thesis"`)."""
-    with open(_scene_path(path), "rb") as fh:
-        return scene_from_dict(tomllib.load(fh))
-
-
-def _toml_value(x) -> str:
-    if isinstance(x, list):
-        return "[" + ", ".join(_toml_value(v) for v in x) + "]"
-    return repr(float(x))
-
-
-def scene_to_dict(scene: Scene) -> dict:
-    """The TOML-shaped dict of a concrete scene (angles in degrees under `_deg` keys)."""
-    out = {}
-    for section in _SECTIONS:
-        module = getattr(scene, section)
-        fields = {}
-        for name in module.__dataclass_fields__:
-            value = jnp.asarray(getattr(module, name)).tolist()
-            if (section, name) in _ANGLE_KEYS:
-                fields[f"{name}_deg"] = value / DEG
-            else:
-                fields[name] = value
-        out[section] = fields
-    return out
-
-
-def save_scene(scene: Scene, path) -> None:
-    """Write a concrete scene as TOML (round-trips through `load_scene`)."""
-    lines = ["# beamdrop_jax scene (SI units; angles in degrees under *_deg keys)"]
-    for section, fields in scene_to_dict(scene).items():
-        lines.append(f"\n[{section}]")
-        lines += [f"{k} = {_toml_value(v)}" for k, v in fields.items()]
-    Path(path).write_text("\n".join(lines) + "\n")
+    """Raise `ValueError` naming the field, its value and the valid range if a concrete scene (or batch of scenes)
+    has any flagged problem (no-op under tracing)."""
+    flags = scene_flags(scene)
+    if not is_concrete(flags) or not np.any(np.asarray(flags)):
+        return
+    for section in SECTIONS:
+        getattr(scene, section).__check_init__()
+    _check_fits(scene)
+    raise_if_flagged(flags, "invalid scene")

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._scene import Scene
+from ._scene import SECTIONS, Scene
 from ._simulate import Numerics, _setup, drop_motion, peak_deflection, peak_strain, peak_stress
 from ._peaks import field_on_grid
 
@@ -16,9 +16,9 @@ _PEAKS = {"stress": peak_stress, "strain": peak_strain, "deflection": peak_defle
 def scalar_fields(scene: Scene) -> list[tuple[str, float]]:
     """Dotted names and values of every scalar float in a scene (vectors expand to `name[i]`)."""
     rows = []
-    for section in ("housing", "board", "placement", "drop", "contact"):
+    for section, cls in SECTIONS.items():
         module = getattr(scene, section)
-        for name in module.__dataclass_fields__:
+        for name in cls.RANGES:
             value = np.asarray(getattr(module, name))
             if value.ndim == 0:
                 rows.append((f"{section}.{name}", float(value)))
@@ -29,17 +29,31 @@ def scalar_fields(scene: Scene) -> list[tuple[str, float]]:
 
 class Sensitivity(eqx.Module):
     """One row of `sensitivities`: d(peak)/d(field) in peak units per field unit, and the elasticity
-    (field / peak) d(peak)/d(field): the % change of the peak per % change of the field (0 for a field at 0)."""
+    (field / peak) d(peak)/d(field): the % change of the peak per % change of the field (None for a field at 0,
+    where a relative change means nothing; its derivative still does)."""
 
     field: str = eqx.field(static=True)
     value: float = eqx.field(static=True)
     derivative: float = eqx.field(static=True)
-    elasticity: float = eqx.field(static=True)
+    elasticity: float | None = eqx.field(static=True)
+
+    @property
+    def unit(self) -> str:
+        """The field's SI unit ("" for dimensionless fields)."""
+        section, name = self.field.split("[")[0].split(".")
+        return SECTIONS[section].RANGES[name][0].unit
+
+    def row(self, peak_unit: str = "Pa", scale: float = 1.0) -> dict:
+        """The row with the derivative in `peak_unit` (the peak's SI value times `scale`) per field unit."""
+        return {"field": self.field, "value": self.value, "unit": self.unit or "-",
+                "derivative": self.derivative * scale,
+                "derivative_unit": f"{peak_unit} per {self.unit}" if self.unit else peak_unit,
+                "elasticity": self.elasticity}
 
 
 def sensitivities(scene: Scene, numerics: Numerics | None = None, quantity: str = "stress") -> list[Sensitivity]:
     """d(peak)/d(field) and elasticities for every scalar field of a scene, largest |elasticity| first (fields at
-    zero, whose elasticity is 0, follow, largest |derivative| first). `quantity`: stress, strain or deflection."""
+    zero, whose elasticity is undefined (None), follow, largest |derivative| first). `quantity`: stress, strain or deflection."""
     if quantity not in _PEAKS:
         raise ValueError(f"quantity = {quantity!r}; valid: {', '.join(_PEAKS)}")
     peak_fn = _PEAKS[quantity]
@@ -49,10 +63,11 @@ def sensitivities(scene: Scene, numerics: Numerics | None = None, quantity: str 
     grads = dict(scalar_fields(grad))
     peak = float(peak)
     rows = [
-        Sensitivity(name, values[name], grads[name], values[name] * grads[name] / peak if peak else 0.0)
+        Sensitivity(name, values[name], grads[name],
+                    values[name] * grads[name] / peak if (peak and values[name] != 0.0) else None)
         for name in values
     ]
-    return sorted(rows, key=lambda r: (-abs(r.elasticity), -abs(r.derivative)))
+    return sorted(rows, key=lambda r: (r.elasticity is None, -abs(r.elasticity or 0.0), -abs(r.derivative)))
 
 
 def smooth_peak_stress(scene: Scene, numerics: Numerics | None = None, temperature: float = 0.01) -> Float[Array, ""]:

@@ -23,7 +23,7 @@ from ._board import (
     unit_response_jet,
     wavenumbers,
 )
-from ._checks import Flag, combine, flag_if, is_concrete, raise_if_flagged
+from ._checks import Flag, Range, as_float, as_int, as_real, combine, flag_if, is_concrete, raise_if_flagged, require
 from ._impact import LAWS, ImpactResult
 from ._integrate import SOLVERS, solve_modes
 from ._clatter import Impacts, impact_sequence
@@ -43,7 +43,8 @@ class Numerics(eqx.Module):
     - `solver`, `rtol`, `atol`, `max_steps`: the diffrax solver by name (Tsit5, Dopri5, Dopri8, Kvaerno3,
       Kvaerno5, ImplicitEuler, Heun, Bosh3) and its PID controller.
     - `n_modes`: `None` picks the count from the scene (modes up to f_k tau >= `pulse_modes`, at least
-      `min_modes`, at most `max_modes`) and checks it against twice as many (or half as many when at the cap);
+      `min_modes`, at most `max_modes`) and checks it against twice as many, or `max_modes` when twice as many
+      exceed it (half as many only when the count is at the cap);
       an int means exactly modes 1..n_modes, checked against half as many.
     - `window`: time window (s); `None` is the pulse duration plus one fundamental period. With several impacts
       it is the window searched after each impact (the free vibration between impacts repeats with the
@@ -84,30 +85,25 @@ class Numerics(eqx.Module):
         def bad(field, value, valid):
             raise ValueError(f"Numerics.{field} = {value!r}; valid: {valid}")
 
-        if self.method not in METHODS:
-            bad("method", self.method, ", ".join(METHODS))
-        if self.solver not in SOLVERS:
-            bad("solver", self.solver, ", ".join(SOLVERS))
-        if self.law not in LAWS:
-            bad("law", self.law, ", ".join(LAWS))
-        if self.n_modes is not None and (not isinstance(self.n_modes, int) or self.n_modes < 1):
-            bad("n_modes", self.n_modes, "None or an int >= 1")
-        if not (isinstance(self.max_modes, int) and self.max_modes >= 2):
-            bad("max_modes", self.max_modes, "an int >= 2")
-        if not (1 <= self.min_modes <= self.max_modes):
-            bad("min_modes", self.min_modes, f"an int in [1, max_modes = {self.max_modes}]")
-        if self.window is not None and not (self.window > 0 and math.isfinite(self.window)):
-            bad("window", self.window, "None or a finite time > 0 s")
-        for name in ("rtol", "atol", "convergence_rtol", "pulse_modes"):
-            if not getattr(self, name) > 0:
-                bad(name, getattr(self, name), "> 0")
-        for name in ("points_per_period", "x_points_per_mode", "candidates", "max_steps"):
-            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
-                bad(name, getattr(self, name), "an int >= 1")
-        if not (isinstance(self.max_impacts, int) and self.max_impacts >= 1):
-            bad("max_impacts", self.max_impacts, "an int >= 1")
-        if not (self.rest_speed > 0 and math.isfinite(self.rest_speed)):
-            bad("rest_speed", self.rest_speed, "a finite speed > 0 m/s")
+        for name, choices in (("method", METHODS), ("solver", SOLVERS), ("law", LAWS)):
+            if not (isinstance(getattr(self, name), str) and getattr(self, name) in choices):
+                bad(name, getattr(self, name), ", ".join(choices))
+        for name, flag in (("refine", self.refine), ("stretching", self.stretching)):
+            if not isinstance(flag, bool):
+                bad(name, flag, "True or False")
+        if self.n_modes is not None:
+            as_int(self.n_modes, "Numerics.n_modes", 1, 512)
+        as_int(self.max_modes, "Numerics.max_modes", 2, 512)
+        as_int(self.min_modes, "Numerics.min_modes", 1, self.max_modes)
+        for name in ("points_per_period", "x_points_per_mode", "candidates", "max_steps", "max_impacts"):
+            as_int(getattr(self, name), f"Numerics.{name}", 1)
+        as_int(self.newton_steps, "Numerics.newton_steps", 0)
+        if self.window is not None:
+            as_real(self.window, "Numerics.window", Range(0.0, 10.0, lo_open=True, unit="s"))
+        for name in ("rtol", "atol", "convergence_rtol"):
+            as_real(getattr(self, name), f"Numerics.{name}", Range(0.0, 1.0, lo_open=True))
+        as_real(self.pulse_modes, "Numerics.pulse_modes", Range(0.0, 100.0, lo_open=True))
+        as_real(self.rest_speed, "Numerics.rest_speed", Range(0.0, lo_open=True, unit="m/s"))
         if self.max_impacts > 1 and self.method != "closed_form":
             raise ValueError(
                 f"Numerics.max_impacts = {self.max_impacts} needs Numerics.method = \"closed_form\": the flight "
@@ -171,6 +167,48 @@ class Response(eqx.Module):
     window: Float[Array, ""]
     flags: Int[Array, ""]
 
+    def summary(self) -> dict:
+        """The numbers of one response, units in the keys (JSON-ready with `plain`; `repr` prints them)."""
+        from ._impact import ImpactMode
+        from ._report import plain
+
+        if jnp.ndim(self.peak.stress) or not is_concrete(self):
+            raise ValueError("Response.summary() needs one concrete response (index a batched one first)")
+        p = self.peak
+        out = {}
+        if self.impulse is not None:
+            flat = self.housing is not None and bool(self.housing.flat)
+            out["impulse_Ns"] = self.impulse.P
+            out["contact_mode"] = "flat landing (translation)" if flat else ImpactMode(int(self.impulse.mode)).label
+        if self.impacts is not None and int(self.impacts.count) > 1:
+            out["impacts"] = int(self.impacts.count)
+        out |= {
+            "support_jumps_m_per_s": self.support_jumps,
+            "frequencies_Hz": self.frequencies[:4],
+            "n_modes": self.n_modes,
+            "check_modes": self.check_modes,
+            "peak_stress_MPa": p.stress / 1e6,
+            "peak_strain_microstrain": p.strain * 1e6,
+            "peak_stress_x_mm": p.x * 1e3,
+            "peak_stress_t_ms": p.t * 1e3,
+            "peak_deflection_mm": p.deflection * 1e3,
+            "peak_deflection_x_mm": p.deflection_x * 1e3,
+            "peak_deflection_t_ms": p.deflection_t * 1e3,
+            "converged": self.converged,
+            "mode_check_relative_change": self.error_estimate,
+            "window_ms": self.window * 1e3,
+            "flags": Flag.describe(self.flags),
+        }
+        return plain(out)
+
+    def __repr__(self) -> str:
+        from ._report import summary_text
+
+        try:
+            return summary_text(self.summary(), "Response (x from end A, t from the first impact)")
+        except ValueError:
+            return eqx.tree_pformat(self)
+
 
 class ClosedFormModes(eqx.Module):
     """q_k(t) = sum_i beta_ik R_k(t - t_i): exact modal response to half-sine (or ideal impulse) pulses at the
@@ -223,7 +261,9 @@ def _mode_counts(board: Board, motion, numerics: Numerics):
     f_tau = natural_frequencies(board, M) / (2 * math.pi) * duration
     needed = jnp.sum(f_tau < numerics.pulse_modes) + 1  # first k with f_k tau >= target
     used = jnp.clip(needed, numerics.min_modes, M).astype(jnp.int32)
-    check = jnp.where(2 * used <= M, 2 * used, used // 2).astype(jnp.int32)
+    # Check against more modes whenever the cap leaves any (twice as many when it allows): half as many would
+    # measure the error of the smaller model, not of the answer.
+    check = jnp.where(used < M, jnp.minimum(2 * used, M), used // 2).astype(jnp.int32)
     return used, check
 
 
@@ -504,19 +544,29 @@ class Fields(eqx.Module):
     stress: Float[Array, "nx nt"]
 
 
-def response_fields(scene: Scene, numerics: Numerics | None = None, nx: int = 101, nt: int = 801) -> Fields:
-    """Deflection, strain and stress over (x, t) for a scene, with the modes `simulate` reports. With several
-    impacts, `nt` times follow each impact (the window after each, as in the peak search).
+def response_fields(scene: Scene, numerics: Numerics | None = None, nx: int = 101, nt: int = 801,
+                    x=None) -> Fields:
+    """Deflection, strain and stress over (x, t) for a scene, with the modes `simulate` reports. `x`: positions
+    from end A (m; default `nx` points over the board), e.g. strain gauges. With several impacts, `nt` times follow
+    each impact (the window after each, as in the peak search).
 
     Strain and stress are signed: those of the face on the board normal's side (-(h/2) u_xx; positive is tension).
     """
     numerics = Numerics() if numerics is None else numerics
+    as_int(nx, "nx", 2)
+    as_int(nt, "nt", 2)
     response = simulate(scene, numerics)
-    return _fields(scene, response, numerics, nx, nt)
+    length = float(scene.board.length)
+    if x is None:
+        x = jnp.linspace(0.0, 1.0, nx) * scene.board.length
+    else:
+        x = as_float(x, "x", f"positions on the board, [0, {length:g}] m").reshape(-1)
+        require(x, "x", 0.0, length, unit="m")
+    return _fields(scene, response, numerics, x, nt)
 
 
 @eqx.filter_jit
-def _fields(scene, response, numerics, nx, nt):
+def _fields(scene, response, numerics, x, nt):
     board = scene.board
     M = numerics.computed_modes
     motion = drop_motion(scene, numerics)[0]
@@ -524,10 +574,35 @@ def _fields(scene, response, numerics, nx, nt):
     used = response.n_modes
     window, t = _time_grid(board, motion, numerics, nt)
     modal, _ = _modal_solution(board, motion, numerics, window, (k <= used).astype(float_dtype()))
-    x = jnp.linspace(0.0, 1.0, nx) * board.length
     Q = modal.grid_factors(t)
     mask = (k <= used).astype(float_dtype())
     u = field_on_grid(mask, Q, x, board.length)
     curvature = field_on_grid(-(wavenumbers(board, M) ** 2) * mask, Q, x, board.length)
     strain = -board.thickness / 2 * curvature
     return Fields(x, t, u, strain, board.youngs_modulus * strain)
+
+
+def response_notes(scene: Scene, response: Response) -> list[str]:
+    """What a reader of a drop's numbers should know: where the model's assumptions stop holding or the answer is
+    not converged (an empty list when nothing needs saying)."""
+    notes = []
+    board, peak = scene.board, response.peak
+    if float(scene.contact.duration) == 0.0:
+        notes.append(f"ideal impulse (contact duration 0): the peak grows with the mode count and never converges "
+                     f"(stopped at {int(response.n_modes)} modes); give Contact.duration a physical value "
+                     "(0.05-1 ms)")
+    elif not bool(response.converged):
+        notes.append(f"not converged: {int(response.check_modes)} modes change the peak by "
+                     f"{float(response.error_estimate) * 100:.2g} % (Numerics.convergence_rtol = "
+                     "0.1 %); raise Numerics.max_modes")
+    if float(board.youngs_modulus) < 1e6 or float(board.thickness) > 0.05:
+        notes.append(f"the board is not an engineering board (E = {float(board.youngs_modulus):.4g} Pa, thickness "
+                     f"{float(board.thickness):.4g} m): the thesis scene's nondimensional units, so stresses in MPa "
+                     "and strains in microstrain mean nothing physical here")
+    elif float(peak.strain) > 0.01:
+        notes.append(f"peak strain {float(peak.strain) * 100:.3g} % is beyond the elastic range of board materials")
+    if float(peak.deflection) > float(board.thickness):
+        notes.append(f"peak deflection {float(peak.deflection) / float(board.thickness):.2g} x the thickness: "
+                     "linear (small-deflection) theory overestimates it; mid-plane stretching matters "
+                     "(Numerics(method=\"diffrax\", stretching=True))")
+    return notes

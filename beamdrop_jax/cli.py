@@ -1,15 +1,121 @@
-"""The `beamdrop` command: parse, load a scene, call the library, print a table, save figures."""
+"""The `beamdrop` command: parse and check the arguments, load a scene, call the library, print, save files.
+
+Every bad argument is one line on stderr and exit status 2 before any computation. `--json` prints one JSON object
+on stdout (units in the keys) instead of the table; messages about written files then go to stderr.
+Compiled programs are kept in a persistent cache (the user's cache folder; `--no-cache` or BEAMDROP_NO_CACHE=1
+turn it off, BEAMDROP_CACHE_DIR moves it); a run that must compile says so on stderr.
+"""
 
 import argparse
+import hashlib
+import json
+import math
+import os
 import sys
 from pathlib import Path
 
+STANDARDS = ("ista-1a", "ista-2a", "mil-std-810h-516-iv", "iec-60068-2-31", "jesd22-b111")
+QUANTITIES = {"stress": ("MPa", 1e-6), "strain": ("microstrain", 1e6), "deflection": ("mm", 1e3)}
 
-def _setup_jax(args):
-    import jax
 
-    # The CLI (not the library) picks the precision: float64 unless asked otherwise.
-    jax.config.update("jax_enable_x64", not getattr(args, "float32", False))
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("beamdrop-jax")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        sys.stderr.write(f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+        sys.exit(2)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Argument types: each rejects a bad value with a message that names the valid range and unit.
+
+
+def _int_at_least(lo):
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number (valid: >= {lo})") from None
+        if value < lo:
+            raise argparse.ArgumentTypeError(f"{value} is out of range (valid: a whole number >= {lo})")
+        return value
+
+    return parse
+
+
+def _float_in(lo, hi, unit, lo_open=False):
+    def parse(text):
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number (valid: {unit})") from None
+        low_ok = value > lo if lo_open else value >= lo
+        if not (math.isfinite(value) and low_ok and value <= hi):
+            bracket = "(" if lo_open else "["
+            raise argparse.ArgumentTypeError(f"{text} is out of range (valid: {bracket}{lo:g}, {hi:g}] {unit})")
+        return value
+
+    return parse
+
+
+def _microstrain(text):
+    value = _float_in(0.0, 1e5, "microstrain", lo_open=True)(text)
+    if value < 1.0:
+        raise argparse.ArgumentTypeError(
+            f"{text} microstrain is below 1: give the limit in microstrain (2000 means 0.2 %), not as a fraction"
+        )
+    return value
+
+
+def _degrees_list(text):
+    """'15:75:7' -> 7 angles from 15 to 75 degrees; '30,45' -> those angles (degrees)."""
+    number = _float_in(-3600.0, 3600.0, "deg")
+    if ":" in text:
+        parts = text.split(":")
+        if len(parts) != 3:
+            raise argparse.ArgumentTypeError(f"{text!r}: write 'low:high:count' (e.g. 15:75:7) or 'a,b,c' in degrees")
+        return [float(v) for v in __import__("numpy").linspace(number(parts[0]), number(parts[1]),
+                                                               _int_at_least(1)(parts[2]))]
+    try:
+        return [number(v) for v in text.split(",")]
+    except argparse.ArgumentTypeError as err:
+        raise argparse.ArgumentTypeError(f"{text!r}: {err} (write 'a,b,c' or 'low:high:count' in degrees)") from None
+
+
+def _heights(text):
+    height = _float_in(0.0, 1e4, "m", lo_open=True)
+    return [height(v) for v in text.split(",")]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Output: tables for people, one JSON object for programs.
+
+
+class _Output:
+    def __init__(self, args):
+        self.json = getattr(args, "json", False)
+        self.report = {}
+
+    def say(self, text=""):
+        if not self.json:
+            print(text)
+
+    def wrote(self, path):
+        print(f"wrote {path}", file=sys.stderr if self.json else sys.stdout)
+        self.report.setdefault("files", []).append(str(path))
+
+    def summary(self, summary: dict, title: str):
+        from ._report import plain, summary_text
+
+        self.report.update(plain(summary))
+        self.say(summary_text(summary, title))
 
 
 def _scene(args):
@@ -18,339 +124,395 @@ def _scene(args):
     return bd.load_scene(args.scene) if args.scene else bd.Scene.default()
 
 
-def _out(args) -> Path:
+def _scene_name(args) -> str:
+    return f"scene {args.scene}" if args.scene else "the default scene"
+
+
+def _writes_files(args) -> bool:
+    return (not args.no_plots) or args.command in ("campaign", "sensitivity", "montecarlo", "optimize") or bool(
+        getattr(args, "gauge", None)
+    )
+
+
+def _check_out(args):
+    """Create `--out` and prove it writable before any computation."""
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".beamdrop-write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as err:
+        raise ValueError(f"--out {args.out}: cannot write there ({err.strerror or err})") from None
 
 
-def _save(fig, path: Path):
+def _save(output, fig, name, args):
+    import matplotlib.pyplot as plt
+
+    path = Path(args.out) / name
     fig.savefig(path, dpi=120)
-    print(f"wrote {path}")
+    plt.close(fig)
+    output.wrote(path)
 
 
-def _table(rows):
-    width = max(len(k) for k, _ in rows)
-    for k, v in rows:
-        print(f"  {k:<{width}}  {v}")
+def _numerics(args, **overrides):
+    import beamdrop_jax as bd
+
+    kw = {k: getattr(args, k) for k in ("method", "solver", "n_modes", "max_impacts") if getattr(args, k, None)}
+    kw.update(overrides)
+    return bd.Numerics(**kw)
 
 
-def cmd_impact(args):
+# ---------------------------------------------------------------------------------------------------------------
+# Commands.
+
+
+def cmd_impact(args, output):
     import beamdrop_jax as bd
 
     scene = _scene(args)
     hit = bd.housing_impact(scene, law=args.law)
-    imp = hit.impact
-    print(f"Impact of {'scene ' + args.scene if args.scene else 'the default scene'} ({args.law} restitution)")
-    _table(
-        [
-            ("striking corner (q1, q2) from G", f"({float(hit.corner[0]) * 1e3:.1f}, {float(hit.corner[1]) * 1e3:.1f}) mm"),
-            ("approach velocity (S0, C0)", f"({float(hit.v0[0]):.4f}, {float(hit.v0[1]):.4f}) m/s"),
-            ("impulse (Pt, Pn)", f"({float(imp.P[0]):.5f}, {float(imp.P[1]):.5f}) N s"),
-            ("contact mode", "flat landing (translation)" if bool(hit.flat) else bd.ImpactMode(int(imp.mode)).label),
-            ("centre-of-mass velocity jump", f"({float(hit.dv_G[0]):.4f}, {float(hit.dv_G[1]):.4f}) m/s"),
-            ("spin jump", f"{float(hit.dw):.4f} rad/s"),
-            ("contact velocity after (S, C)", f"({float(imp.velocity[0]):.4f}, {float(imp.velocity[1]):.4f}) m/s"),
-            ("kinetic energy lost", f"{-float(imp.energy_change):.5f} J"),
-            ("board support jumps (dvA, dvB)", "({:.4f}, {:.4f}) m/s".format(*map(float, bd.support_jumps(scene, hit)))),
-        ]
-    )
+    summary = {
+        "striking_corner_from_G_mm": hit.corner * 1e3,
+        "approach_velocity_m_per_s": hit.v0,
+        **hit.impact.summary(),
+        "centre_of_mass_velocity_jump_m_per_s": hit.dv_G,
+        "spin_jump_rad_per_s": hit.dw,
+        "board_support_jumps_m_per_s": bd.support_jumps(scene, hit),
+    }
+    if bool(hit.flat):
+        summary["contact_mode"] = "flat landing (translation)"
+    output.summary(summary, f"Impact of {_scene_name(args)} ({args.law} restitution; S tangential, C normal)")
     if not args.no_plots:
-        out = _out(args)
         fig = bd.plot_impact(hit.B, hit.v0, scene.contact.friction, scene.contact.restitution, law=args.law)
-        _save(fig, out / "impact.png")
+        _save(output, fig, "impact.png", args)
 
 
-def _numerics(args):
-    import beamdrop_jax as bd
-
-    kw = {}
-    if getattr(args, "method", None):
-        kw["method"] = args.method
-    if getattr(args, "solver", None):
-        kw["solver"] = args.solver
-    if getattr(args, "n_modes", None):
-        kw["n_modes"] = args.n_modes
-    if getattr(args, "max_impacts", None):
-        kw["max_impacts"] = args.max_impacts
-    return bd.Numerics(**kw)
-
-
-def cmd_drop(args):
-    import beamdrop_jax as bd
-
-    scene = _scene(args)
-    numerics = _numerics(args)
-    res = bd.simulate(scene, numerics)
-    hit, peak = res.housing, res.peak
-    freqs = ", ".join(f"{float(f):.0f}" for f in res.frequencies[:4])
-    tau = float(scene.contact.duration)
-    print(f"Drop of {'scene ' + args.scene if args.scene else 'the default scene'}: "
-          f"{float(scene.drop.height):g} m onto a corner at {float(scene.drop.orientation) * 57.29577951308232:.1f} deg, "
-          + (f"half-sine contact {tau * 1e3:g} ms" if tau > 0 else "ideal impulse"))
-    _table(
-        [
-            ("impulse (Pt, Pn)", f"({float(res.impulse.P[0]):.4f}, {float(res.impulse.P[1]):.4f}) N s"),
-            ("contact mode", "flat landing (translation)" if bool(hit.flat) else bd.ImpactMode(int(res.impulse.mode)).label),
-            ("support jumps (dvA, dvB)", "({:.3f}, {:.3f}) m/s".format(*map(float, res.support_jumps))),
-            ("first frequencies", f"{freqs} Hz"),
-            ("modes used (checked against)", f"{int(res.n_modes)} ({int(res.check_modes)})"),
-            ("peak stress", f"{float(peak.stress) / 1e6:.2f} MPa"),
-            ("peak strain", f"{float(peak.strain) * 1e6:.1f} microstrain"),
-            ("peak deflection", f"{float(peak.deflection) * 1e3:.3f} mm at x = {float(peak.deflection_x) * 1e3:.1f} mm, "
-                                f"t = {float(peak.deflection_t) * 1e3:.3f} ms"),
-            ("peak stress at", f"x = {float(peak.x) * 1e3:.1f} mm from end A, t = {float(peak.t) * 1e3:.3f} ms"),
-            ("converged", ("yes" if bool(res.converged) else "NO")
-                          + f" (mode check changes the peak by {float(res.error_estimate) * 100:.3f} %)"),
-        ]
-    )
-    if numerics.max_impacts > 1:
-        imp = res.impacts
-        print(f"Impacts ({int(imp.count)} of at most {numerics.max_impacts}; ended: "
-              f"{bd.Ending(int(imp.ending)).name.lower().replace('_', ' ')})")
-        print(f"  {'#':>2} {'t (ms)':>9} {'corner (mm)':>16} {'approach (m/s)':>15} {'Pt, Pn (N s)':>20} "
-              f"{'dvA, dvB (m/s)':>17}")
-        for i in range(int(imp.count)):
-            print(f"  {i + 1:>2} {float(imp.t[i]) * 1e3:>9.3f} "
-                  f"{'({:.1f}, {:.1f})'.format(*(float(v) * 1e3 for v in imp.corner[i])):>16} "
-                  f"{float(imp.approach_speed[i]):>15.4f} "
-                  f"{'{:.4f}, {:.4f}'.format(*map(float, imp.P[i])):>20} "
-                  f"{'{:.3f}, {:.3f}'.format(*map(float, imp.support_jumps[i])):>17}")
-    if not bool(res.converged):
-        print("  note: not converged. An ideal impulse (duration 0) never converges in the mode count; "
-              "give Contact.duration a physical value (0.05-1 ms).")
-    if not args.no_plots:
-        out = _out(args)
-        fields = bd.response_fields(scene, numerics)
-        _save(bd.plot_stress_map(fields, res), out / "stress_map.png")
-        _save(bd.plot_deflected_board(fields, res), out / "deflection.png")
-        fig = bd.plot_impact(hit.B, hit.v0, scene.contact.friction, scene.contact.restitution, law=numerics.law)
-        _save(fig, out / "impact.png")
-
-
-def cmd_campaign(args):
-    import beamdrop_jax as bd
-
-    scene = _scene(args)
-    numerics = _numerics(args)
-    result = bd.campaign(scene, args.standard, numerics, mass=args.mass, height=args.height)
-    print(f"{args.standard}: {bd.STANDARDS[args.standard]}")
-    print(f"  {'#':>2}  {'drop':<36} {'height (m)':>10} {'angle (deg)':>11} {'reps':>4} {'stress (MPa)':>12} "
-          f"{'strain (ue)':>11} {'defl. (mm)':>10}")
-    for r in result.rows():
-        mark = " <- worst" if r["worst"] else ("  " + r["note"] if r["note"] else "")
-        print(f"  {r['drop']:>2}  {r['label']:<36} {r['height_m']:>10.3f} {r['orientation_deg']:>11.2f} "
-              f"{r['repetitions']:>4} {r['peak_stress_MPa']:>12.2f} {r['peak_strain_microstrain']:>11.1f} "
-              f"{r['peak_deflection_mm']:>10.3f}{mark}")
-    out = _out(args)
-    print(f"wrote {result.to_csv(out / f'campaign-{args.standard}.csv')}")
-    if not args.no_plots:
-        _save(bd.plot_campaign(result), out / f"campaign-{args.standard}.png")
-
-
-def _angles(spec: str):
-    """'15:75:7' -> 7 angles from 15 to 75 degrees (radians); '30,45' -> those angles."""
+def cmd_drop(args, output):
     import numpy as np
 
-    if ":" in spec:
-        lo, hi, n = spec.split(":")
-        return np.radians(np.linspace(float(lo), float(hi), int(n)))
-    return np.radians([float(v) for v in spec.split(",")])
-
-
-def cmd_sensitivity(args):
     import beamdrop_jax as bd
 
     scene = _scene(args)
-    rows = bd.sensitivities(scene, _numerics(args), quantity=args.quantity)
-    unit = {"stress": "Pa", "strain": "-", "deflection": "m"}[args.quantity]
-    peak = {"stress": bd.peak_stress, "strain": bd.peak_strain, "deflection": bd.peak_deflection}[args.quantity]
-    print(f"Sensitivity of the peak {args.quantity} ({float(peak(scene, _numerics(args))):.6g} {unit}), "
-          "largest elasticity first")
-    print(f"  {'field':<32} {'value':>13} {'d(peak)/d(field)':>17} {'elasticity':>11}")
-    for r in rows:
-        print(f"  {r.field:<32} {r.value:>13.6g} {r.derivative:>17.6g} {r.elasticity:>11.4f}")
+    numerics = _numerics(args)
+    if args.gauge is not None and not 0 <= args.gauge * 1e-3 <= float(scene.board.length):
+        raise ValueError(f"--gauge {args.gauge:g} mm is off the board: valid [0, {float(scene.board.length) * 1e3:g}] "
+                         "mm from end A")
+    res = bd.simulate(scene, numerics)
+    tau = float(scene.contact.duration)
+    output.report["scene"] = args.scene or "default"
+    output.summary(res.summary(),
+                   f"Drop of {_scene_name(args)}: {float(scene.drop.height):g} m onto a corner at "
+                   f"{math.degrees(float(scene.drop.orientation)):.1f} deg, "
+                   + (f"half-sine contact {tau * 1e3:g} ms" if tau > 0 else "ideal impulse (contact duration 0)"))
+    if numerics.max_impacts > 1:
+        imp = res.impacts
+        rows = [{"impact": i + 1, "t_ms": float(imp.t[i]) * 1e3, "corner_from_G_mm": np.asarray(imp.corner[i]) * 1e3,
+                 "approach_speed_m_per_s": float(imp.approach_speed[i]), "impulse_Ns": np.asarray(imp.P[i]),
+                 "support_jumps_m_per_s": np.asarray(imp.support_jumps[i])} for i in range(int(imp.count))]
+        from ._report import plain
 
+        output.report["impacts_table"] = plain(rows)
+        output.say(f"Impacts ({int(imp.count)} of at most {numerics.max_impacts}; ended: "
+                   f"{bd.Ending(int(imp.ending)).name.lower().replace('_', ' ')})")
+        output.say(f"  {'#':>2} {'t (ms)':>9} {'corner (mm)':>16} {'approach (m/s)':>15} {'Pt, Pn (N s)':>20} "
+                   f"{'dvA, dvB (m/s)':>17}")
+        for r in plain(rows):
+            output.say(f"  {r['impact']:>2} {r['t_ms']:>9.3f} {'({:.1f}, {:.1f})'.format(*r['corner_from_G_mm']):>16} "
+                       f"{r['approach_speed_m_per_s']:>15.4f} {'{:.4f}, {:.4f}'.format(*r['impulse_Ns']):>20} "
+                       f"{'{:.3f}, {:.3f}'.format(*r['support_jumps_m_per_s']):>17}")
+    for note in bd.response_notes(scene, res):
+        output.say(f"  note: {note}")
+        output.report.setdefault("notes", []).append(note)
+    if args.gauge is not None:
+        fields = bd.response_fields(scene, numerics, x=[args.gauge * 1e-3], nt=2001)
+        from ._report import write_csv
 
-def cmd_optimize(args):
-    import beamdrop_jax as bd
-
-    scene = _scene(args)
-    orientations = _angles(args.orientations)
-    heights = [float(h) for h in args.heights.split(",")] if args.heights else None
-    numerics = bd.Numerics(n_modes=args.n_modes or 8)
-    res = bd.optimize_placement(scene, orientations, heights, objective=args.objective, alpha=args.alpha,
-                                numerics=numerics, steps=args.steps, starts=args.starts, margin=args.margin)
-    before, after = scene.placement, res.placement
-    print(f"Board placement, {args.objective} peak stress over {res.n_drops} drops "
-          f"({res.n_evaluations} evaluations with gradients)")
-    _table(
-        [
-            ("before: centre, angle", f"({float(before.centre[0]) * 1e3:.2f}, {float(before.centre[1]) * 1e3:.2f}) mm, "
-                                      f"{float(before.angle) * 57.29577951308232:.2f} deg"),
-            ("before: objective", f"{float(res.initial_value) / 1e6:.2f} MPa"),
-            ("after: centre, angle", f"({float(after.centre[0]) * 1e3:.2f}, {float(after.centre[1]) * 1e3:.2f}) mm, "
-                                     f"{float(after.angle) * 57.29577951308232:.2f} deg"),
-            ("after: objective", f"{float(res.value) / 1e6:.2f} MPa"),
-        ]
-    )
+        rows = [{"t_ms": t * 1e3, "strain_microstrain": e * 1e6, "stress_MPa": s * 1e-6}
+                for t, e, s in zip(np.asarray(fields.t), np.asarray(fields.strain[0]), np.asarray(fields.stress[0]))]
+        output.wrote(write_csv(rows, Path(args.out) / f"gauge_{args.gauge:g}mm.csv"))
+        peak = int(np.argmax(np.abs(np.asarray(fields.strain[0]))))
+        output.summary({"gauge_x_mm": args.gauge, "gauge_peak_strain_microstrain": rows[peak]["strain_microstrain"],
+                        "gauge_peak_time_ms": rows[peak]["t_ms"]}, "Gauge (signed strain of the normal-side face)")
     if not args.no_plots:
-        landscape = bd.placement_landscape(scene, res, orientations, heights, alpha=args.alpha, numerics=numerics,
-                                           margin=args.margin)
-        _save(bd.plot_placement(scene, res, landscape), _out(args) / "placement.png")
+        fields = bd.response_fields(scene, numerics)
+        _save(output, bd.plot_scene(scene, res), "scene.png", args)
+        _save(output, bd.plot_stress_map(fields, res), "stress_map.png", args)
+        _save(output, bd.plot_deflected_board(fields, res), "deflection.png", args)
+        _save(output, bd.plot_impacts(scene, res), "impact.png", args)
 
 
-def cmd_montecarlo(args):
-    import jax
+def cmd_campaign(args, output):
+    import beamdrop_jax as bd
+
+    scene = _scene(args)
+    result = bd.campaign(scene, args.standard, _numerics(args), mass=args.mass, height=args.height)
+    output.report |= {"standard": args.standard, "drops": result.rows()}
+    output.say(f"{args.standard}: {bd.STANDARDS[args.standard]}")
+    output.say(result.table())
+    output.wrote(result.to_csv(Path(args.out) / f"campaign-{args.standard}.csv"))
+    if not args.no_plots:
+        _save(output, bd.plot_campaign(result, scene=args.scene or "default"), f"campaign-{args.standard}.png", args)
+
+
+def cmd_sensitivity(args, output):
+    import beamdrop_jax as bd
+    from ._report import write_csv
+
+    scene = _scene(args)
+    numerics = _numerics(args)
+    rows = bd.sensitivities(scene, numerics, quantity=args.quantity)
+    unit, scale = QUANTITIES[args.quantity]
+    peak = {"stress": bd.peak_stress, "strain": bd.peak_strain, "deflection": bd.peak_deflection}[args.quantity]
+    value = float(peak(scene, numerics)) * scale
+    table = [r.row(unit, scale) for r in rows]
+    output.report |= {f"peak_{args.quantity}_{unit}": value, "fields": table}
+    output.say(f"Sensitivity of the peak {args.quantity} ({value:.6g} {unit}) to every scene field, largest "
+               "elasticity (% change of the peak per % change of the field) first; fields whose value is 0 have no "
+               "elasticity and follow, largest derivative first")
+    output.say(f"  {'field':<30} {'value':>12} {'unit':<7} {'d(peak)/d(field)':>17} {'per':<20} {'elasticity':>10}")
+    for r in table:
+        e = "n/a" if r["elasticity"] is None else f"{r['elasticity']:.4f}"
+        output.say(f"  {r['field']:<30} {r['value']:>12.6g} {r['unit']:<7} {r['derivative']:>17.6g} "
+                   f"{r['derivative_unit']:<20} {e:>10}")
+    output.wrote(write_csv(table, Path(args.out) / f"sensitivity-{args.quantity}.csv"))
+
+
+def cmd_optimize(args, output):
+    import numpy as np
 
     import beamdrop_jax as bd
+    from ._report import write_csv
+
+    scene = _scene(args)
+    orientations = np.radians(args.orientations)
+    numerics = _numerics(args, n_modes=args.n_modes or 8)
+    res = bd.optimize_placement(scene, orientations, args.heights, objective=args.objective, alpha=args.alpha,
+                                numerics=numerics, steps=args.steps, starts=args.starts, margin=args.margin * 1e-3,
+                                progress=not args.json)
+    output.summary(res.summary(scene), f"Board placement: {args.objective} peak stress over {res.n_drops} drops "
+                                       f"({res.n_evaluations} evaluations with gradients)")
+    history = [{"step": i, "objective_MPa": v / 1e6, "c1_mm": p[0] * 1e3, "c2_mm": p[1] * 1e3,
+                "angle_deg": math.degrees(p[2])}
+               for i, (v, p) in enumerate(zip(np.asarray(res.history).tolist(), np.asarray(res.path).tolist()))]
+    output.wrote(write_csv(history, Path(args.out) / "optimize-history.csv"))
+    if not args.no_plots:
+        landscape = bd.placement_landscape(scene, res, orientations, args.heights, alpha=args.alpha,
+                                           numerics=numerics, margin=args.margin * 1e-3)
+        _save(output, bd.plot_placement(scene, res, landscape), "placement.png", args)
+
+
+def cmd_montecarlo(args, output):
+    import dataclasses
+
+    import jax
+    import numpy as np
+
+    import beamdrop_jax as bd
+    from ._report import write_csv
 
     scene = _scene(args)
     numerics = bd.Numerics(n_modes=args.n_modes) if args.n_modes else None
     if args.max_impacts:
-        import dataclasses
-
         numerics = dataclasses.replace(numerics or bd.montecarlo_numerics(scene), max_impacts=args.max_impacts)
-    res = bd.montecarlo(scene, args.n, jax.random.PRNGKey(args.seed), numerics=numerics, batch_size=args.batch_size)
-    stress, strain = res.summary("stress"), res.summary("strain")
-    print(f"{res.n} random drops (orientation uniform on [0, 360) deg), {res.n_invalid} outside the model and "
-          "left out")
-    _table(
-        [
-            ("peak stress mean +- std", f"{stress['mean'] / 1e6:.2f} +- {stress['std'] / 1e6:.2f} MPa"),
-            ("peak stress median / 99 % / max", f"{stress['q0.5'] / 1e6:.2f} / {stress['q0.99'] / 1e6:.2f} / "
-                                                f"{stress['max'] / 1e6:.2f} MPa"),
-            ("peak strain median / 99 % / max", f"{strain['q0.5'] * 1e6:.0f} / {strain['q0.99'] * 1e6:.0f} / "
-                                                f"{strain['max'] * 1e6:.0f} microstrain"),
-        ]
-    )
-    p, (lo, hi), k = res.exceedance(args.allowable_strain, "strain")
-    print(f"  P(strain > {args.allowable_strain * 1e6:.0f} microstrain) = {p:.4g} ({k} drops; 95 % Wilson interval "
-          f"{lo:.4g} to {hi:.4g})")
+    res = bd.montecarlo(scene, args.n, jax.random.PRNGKey(args.seed), numerics=numerics,
+                        batch_size=args.batch_size, progress=not args.json)
+    limit = args.allowable_microstrain * 1e-6
+    output.summary(res.report(limit, "strain"),
+                   f"{res.n} random drops (orientation uniform on [0, 360) deg); drops outside the model are left "
+                   "out of every statistic")
+    orientation = np.broadcast_to(np.asarray(res.samples.drop.orientation), (res.n,))
+    rows = [{"orientation_deg": math.degrees(o), "peak_stress_MPa": s / 1e6, "peak_strain_microstrain": e * 1e6,
+             "peak_deflection_mm": d * 1e3, "flags": "|".join(bd.Flag.describe(f))}
+            for o, s, e, d, f in zip(orientation.tolist(), *(np.asarray(v).tolist() for v in
+                                     (res.peak_stress, res.peak_strain, res.peak_deflection, res.flags)))]
+    output.wrote(write_csv(rows, Path(args.out) / "montecarlo-drops.csv"))
     if not args.no_plots:
-        _save(bd.plot_montecarlo(res, limit=args.allowable_strain, quantity="strain"), _out(args) / "montecarlo.png")
+        _save(output, bd.plot_montecarlo(res, limit=limit, quantity="strain"), "montecarlo.png", args)
 
 
-def cmd_bench(args):
+def cmd_bench(args, output):
     import beamdrop_jax as bd
-    from beamdrop_jax._bench import PEERS, ratio_at
+
+    if args.latency:
+        from ._bench import latency_bench
+
+        output.summary(latency_bench(repeats=args.repeats), "beamdrop bench --latency: wall time against a bare "
+                                                            "JAX process, median of the repeats")
+        return
+    from ._bench import PEERS, ratio_at
 
     level = "tiny" if args.tiny else "quick" if args.quick else "full"
-    print(f"beamdrop bench ({level}): peak-stress error against 32 modes refined (f64), seconds per drop")
-    rows = bd.run_bench(_scene(args), level=level, out=_out(args))
-    for peer in PEERS:
-        ratio = ratio_at(rows, peer)
-        print(f"  speed ratio at 1 % error against {peer[6:]}: " + (f"{ratio:.1f}x" if ratio else "n/a (no row meets it)"))
-    print(f"wrote {Path(args.out) / 'bench.json'} and {Path(args.out) / 'bench.png'}")
+    output.say(f"beamdrop bench ({level}): peak-stress error against 32 modes refined (f64), seconds per drop")
+    rows = bd.run_bench(_scene(args), level=level, out=Path(args.out))
+    ratios = {f"speed_ratio_at_1pct_error_vs_{peer[6:].replace(' ', '_')}": ratio_at(rows, peer) for peer in PEERS}
+    output.summary(ratios, "Speed ratios at 1 % error (n/a: no row meets it)")
+    output.wrote(Path(args.out) / "bench.json")
+    if not args.no_plots:
+        study = json.loads((Path(args.out) / "bench.json").read_text())["stability"]
+        _save(output, bd.plot_bench(rows), "bench.png", args)
+        _save(output, bd.plot_stability(study), "stability.png", args)
+
+
+# ---------------------------------------------------------------------------------------------------------------
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="beamdrop", description="Differentiable drop simulation of a board inside a device (SI units)."
+    parser = _Parser(
+        prog="beamdrop",
+        description="Differentiable drop simulation of a board inside a device. Inputs in SI units (scene files: "
+        "angles in degrees under *_deg keys); outputs in MPa, microstrain, mm and ms.",
+        epilog="Start with 'beamdrop drop' (the embedded default scene). Each command's --help gives its options.",
     )
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser.add_argument("--version", action="version", version=f"beamdrop {_version()}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    def common(p):
-        p.add_argument("--scene", help="scene TOML file or embedded scene name (default: the embedded default scene)")
-        p.add_argument("--out", default="beamdrop-out", help="folder for figures and tables (default: beamdrop-out)")
-        p.add_argument("--float32", action="store_true", help="compute in float32 (default float64)")
-        p.add_argument("--no-plots", action="store_true", help="print only, write no figures")
+    def command(name, help_text, description=None):
+        p = sub.add_parser(name, help=help_text, description=(description or help_text).replace("%%", "%"))
+        p.add_argument("--scene", metavar="FILE_OR_NAME",
+                       help="scene TOML file, or an embedded scene: default, jedec, thesis (default: default)")
+        p.add_argument("--out", default="beamdrop-out", metavar="DIR",
+                       help="folder for figures and tables, created if needed (default: beamdrop-out)")
+        p.add_argument("--float32", action="store_true", help="compute in float32 (default: float64)")
+        p.add_argument("--no-plots", action="store_true", help="write no figures")
+        p.add_argument("--json", action="store_true",
+                       help="print one JSON object (units in the keys) instead of the table")
+        p.add_argument("--no-cache", action="store_true",
+                       help="do not keep compiled programs between runs (also: BEAMDROP_NO_CACHE=1)")
+        return p
 
-    p = sub.add_parser(
-        "impact",
-        help="Routh impact of the housing: impulse (N s), mode, velocity jumps (m/s), energy lost (J), diagram",
-    )
-    common(p)
-    p.add_argument("--law", default="poisson", choices=["poisson", "newton", "stronge"], help="restitution law")
+    def modes(p, default="chosen from the scene"):
+        p.add_argument("--n-modes", type=_int_at_least(1), metavar="N",
+                       help=f"use exactly modes 1..N (default: {default})")
+
+    def impacts(p):
+        p.add_argument("--max-impacts", type=_int_at_least(1), metavar="K",
+                       help="follow up to K clattering impacts after the first (default 1: the first impact only)")
+
+    p = command("impact", "the housing's corner impact alone: impulse (N s), contact mode, velocity jumps (m/s), "
+                          "energy lost (J), impulse diagram")
+    p.add_argument("--law", default="poisson", choices=["poisson", "newton", "stronge"],
+                   help="restitution law (default poisson)")
     p.set_defaults(func=cmd_impact)
 
-    p = sub.add_parser(
-        "drop",
-        help="the main job: one drop -> impulse, support jumps (m/s), frequencies (Hz), peak stress (MPa), strain "
-        "(microstrain), deflection (mm), where and when; figures",
-    )
-    common(p)
+    p = command("drop", "the main job: one drop -> impulse (N s), support jumps (m/s), frequencies (Hz), peak "
+                        "stress (MPa), strain (microstrain) and deflection (mm), where (mm from end A) and when (ms); "
+                        "figures")
     p.add_argument("--method", choices=["closed_form", "diffrax"], help="board response method (default closed_form)")
-    p.add_argument("--solver", help="diffrax solver name (Tsit5, Dopri5, Dopri8, Kvaerno5, ImplicitEuler, ...)")
-    p.add_argument("--n-modes", type=int, help="exactly this many modes (default: chosen from the scene)")
-    p.add_argument("--max-impacts", type=int, help="follow the clattering impacts after the first (default 1)")
+    p.add_argument("--solver", help="diffrax solver (Tsit5, Dopri5, Dopri8, Kvaerno5, ImplicitEuler, ...)")
+    modes(p)
+    impacts(p)
+    p.add_argument("--gauge", type=_float_in(0.0, 1e5, "mm"), metavar="X_MM",
+                   help="also write the strain history at X_MM from end A (CSV: ms, microstrain, MPa)")
     p.set_defaults(func=cmd_drop)
 
-    p = sub.add_parser(
-        "campaign",
-        help="a standard drop campaign (ISTA 1A/2A, MIL-STD-810H 516.8-IV, IEC 60068-2-31, JESD22-B111): peak "
-        "stress (MPa) of every drop, the worst drop, CSV table and bar chart",
-    )
-    common(p)
-    p.add_argument("--standard", required=True, choices=["ista-1a", "ista-2a", "mil-std-810h-516-iv",
-                                                          "iec-60068-2-31", "jesd22-b111"])
-    p.add_argument("--mass", type=float, help="packaged mass for mass-dependent heights, kg (default: the housing's)")
-    p.add_argument("--height", type=float, help="free-fall height where the standard leaves it open, m (IEC: 1.0)")
-    p.add_argument("--n-modes", type=int, help="exactly this many modes (default: chosen from the scene)")
-    p.add_argument("--max-impacts", type=int, help="follow clattering impacts after each drop's first (default 1)")
+    p = command("campaign", "a standard drop campaign (ISTA 1A/2A, MIL-STD-810H 516.8-IV, IEC 60068-2-31, "
+                            "JESD22-B111): peak stress (MPa) of every drop, the worst drop, CSV table and bar chart")
+    p.add_argument("--standard", required=True, choices=STANDARDS, help="the standard")
+    p.add_argument("--mass", type=_float_in(0.0, 1e4, "kg", lo_open=True), metavar="KG",
+                   help="packaged mass for mass-dependent heights, kg (default: the housing's)")
+    p.add_argument("--height", type=_float_in(0.0, 1e3, "m", lo_open=True), metavar="M",
+                   help="free-fall height where the standard leaves it open, m (IEC: default 1.0)")
+    modes(p)
+    impacts(p)
     p.set_defaults(func=cmd_campaign)
 
-    p = sub.add_parser(
-        "sensitivity",
-        help="d(peak)/d(field) and elasticity (% per %) of the peak for every scene field, largest first",
-    )
-    common(p)
-    p.add_argument("--quantity", default="stress", choices=["stress", "strain", "deflection"])
-    p.add_argument("--n-modes", type=int, help="exactly this many modes (default: chosen from the scene)")
+    p = command("sensitivity", "d(peak)/d(field) with units and the elasticity (%% per %%) of the peak for every "
+                               "scene field, largest first; CSV table")
+    p.add_argument("--quantity", default="stress", choices=list(QUANTITIES), help="which peak (default stress)")
+    modes(p)
     p.set_defaults(func=cmd_sensitivity)
 
-    p = sub.add_parser(
-        "optimize",
-        help="place the board (centre in mm, angle in deg) to minimise the peak stress (MPa) over a set of drops",
-    )
-    common(p)
-    p.add_argument("--orientations", default="15:75:7", help="drop angles in degrees: 'lo:hi:n' or 'a,b,c'")
-    p.add_argument("--heights", help="drop heights in m, 'h1,h2' (default: the scene's)")
-    p.add_argument("--objective", default="mean", choices=["mean", "max", "cvar"])
-    p.add_argument("--alpha", type=float, default=0.9, help="CVaR level (default 0.9)")
-    p.add_argument("--steps", type=int, default=100)
-    p.add_argument("--starts", type=int, default=4)
-    p.add_argument("--margin", type=float, default=0.0, help="clearance from the housing's edges, m")
-    p.add_argument("--n-modes", type=int, help="modes per drop (default 8)")
+    p = command("optimize", "place the board (centre in mm, angle in deg) to minimise the peak stress (MPa) over a "
+                            "set of drops; CSV history")
+    p.add_argument("--orientations", type=_degrees_list, default=_degrees_list("15:75:7"), metavar="DEG",
+                   help="drop angles in degrees: 'low:high:count' or 'a,b,c' (default 15:75:7)")
+    p.add_argument("--heights", type=_heights, metavar="M", help="drop heights in m, 'h1,h2' (default: the scene's)")
+    p.add_argument("--objective", default="mean", choices=["mean", "max", "cvar"],
+                   help="risk over the drops (default mean)")
+    p.add_argument("--alpha", type=_float_in(0.0, 0.999, "(CVaR level)"), default=0.9,
+                   help="CVaR level in [0, 0.999] (default 0.9)")
+    p.add_argument("--steps", type=_int_at_least(1), default=100, help="optimiser steps (default 100)")
+    p.add_argument("--starts", type=_int_at_least(1), default=4, help="optimiser starts (default 4)")
+    p.add_argument("--margin", type=_float_in(0.0, 1e4, "mm"), default=0.0, metavar="MM",
+                   help="clearance between the board's ends and the housing's edges, mm (default 0)")
+    modes(p, "8")
     p.set_defaults(func=cmd_optimize)
 
-    p = sub.add_parser(
-        "montecarlo",
-        help="random drops: peak stress (MPa) and strain (microstrain) statistics, P(strain > limit) with a "
-        "confidence interval, polar and exceedance figures",
-    )
-    common(p)
-    p.add_argument("-n", type=int, default=100_000, help="number of drops (default 100000)")
-    p.add_argument("--allowable-strain", type=float, default=2000e-6, help="strain limit (default 2000e-6)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--batch-size", type=int, help="drops per compiled chunk")
-    p.add_argument("--n-modes", type=int, help="modes per drop (default: chosen from the scene, f_k tau >= 1)")
-    p.add_argument("--max-impacts", type=int, help="follow clattering impacts after each drop's first (default 1)")
+    p = command("montecarlo", "random drops: peak stress (MPa) and strain (microstrain) statistics, P(strain > "
+                              "limit) with a 95 %% interval; CSV of every drop, polar and exceedance figures")
+    p.add_argument("-n", type=_int_at_least(1), default=100_000, help="number of drops (default 100000)")
+    p.add_argument("--allowable-microstrain", type=_microstrain, default=2000.0, metavar="UE",
+                   help="strain limit in microstrain (default 2000, i.e. 0.2 %%)")
+    p.add_argument("--seed", type=_int_at_least(0), default=0, help="random seed (default 0)")
+    p.add_argument("--batch-size", type=_int_at_least(1), metavar="N", help="drops per compiled chunk")
+    modes(p, "chosen from the scene")
+    impacts(p)
     p.set_defaults(func=cmd_montecarlo)
 
-    p = sub.add_parser(
-        "bench",
-        help="speed (seconds per drop) against accuracy (peak-stress error) for every method and two peers; "
-        "JSON table and chart",
-    )
-    common(p)
-    p.add_argument("--quick", action="store_true", help="the quick set (under 5 minutes on 2 cores)")
-    p.add_argument("--tiny", action="store_true", help="a smoke test of every part (seconds)")
+    p = command("bench", "speed against accuracy (peak-stress error, seconds per drop) for every method against "
+                         "NumPy and SciPy peers, or --latency: time to first answer; JSON table and chart")
+    level = p.add_mutually_exclusive_group()
+    level.add_argument("--quick", action="store_true", help="the quick set (about 5 minutes on 2 cores)")
+    level.add_argument("--tiny", action="store_true", help="a smoke test of every part (seconds)")
+    level.add_argument("--latency", action="store_true",
+                       help="import, first drop and first gradient in fresh processes against a bare JAX process")
+    p.add_argument("--repeats", type=_int_at_least(1), default=5, help="repeats for --latency (default 5)")
     p.set_defaults(func=cmd_bench)
     return parser
 
 
-def main(argv=None):
-    args = build_parser().parse_args(argv)
-    _setup_jax(args)
-    import matplotlib
+def _cache_dir() -> Path:
+    if os.environ.get("BEAMDROP_CACHE_DIR"):
+        return Path(os.environ["BEAMDROP_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "beamdrop_jax" / "xla"
 
-    matplotlib.use("Agg")
+
+def _setup_jax(args):
+    """Precision, and the persistent compilation cache (the CLI's choices; the library never changes JAX's config).
+    Returns the stamp file that marks these settings as compiled, or None without a cache."""
+    import jax
+
+    jax.config.update("jax_enable_x64", not args.float32)
+    if args.no_cache or os.environ.get("BEAMDROP_NO_CACHE", "") not in ("", "0"):
+        print("beamdrop: compiling (the compilation cache is off; about 10 s)", file=sys.stderr)
+        return None
+    cache = _cache_dir()
     try:
-        args.func(args)
+        cache.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        print(f"beamdrop: compiling (cannot create the cache folder {cache})", file=sys.stderr)
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(cache))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    settings = {k: v for k, v in sorted(vars(args).items()) if k not in ("out", "json", "func", "no_plots")}
+    key = hashlib.sha1(repr((_version(), jax.__version__, settings)).encode()).hexdigest()[:16]
+    stamp = cache / f"compiled-{key}"
+    if not stamp.exists():
+        print(f"beamdrop: compiling (first run with these settings, about 10 s; kept in {cache} for later runs)",
+              file=sys.stderr)
+    return stamp
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    output = _Output(args)
+    try:
+        if _writes_files(args):
+            _check_out(args)
+        stamp = _setup_jax(args)
+        import matplotlib
+
+        matplotlib.use("Agg")
+        args.func(args, output)
     except (ValueError, FileNotFoundError) as err:
-        print(f"beamdrop: error: {err}", file=sys.stderr)
+        print(f"beamdrop {args.command}: error: {err}", file=sys.stderr)
         return 2
+    if stamp is not None:
+        stamp.touch()
+    if args.json:
+        print(json.dumps(output.report, indent=1, allow_nan=False))
     return 0
 
 

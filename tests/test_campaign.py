@@ -76,7 +76,9 @@ def test_jesd22_is_the_board_level_half_sine():
 def test_csv_and_cli(tmp_path, capsys):
     result = bd.campaign(bd.Scene.default(), "iec-60068-2-31")
     rows = list(csv.DictReader(result.to_csv(tmp_path / "c.csv").open()))
-    assert len(rows) == 8 and sum(r["worst"] == "True" for r in rows) == 1
+    # Symmetric drops tie exactly: every drop at the highest stress is marked worst, none other.
+    top = np.nanmax(result.stress)
+    assert len(rows) == 8 and [r["worst"] == "True" for r in rows] == list(result.stress >= top * (1 - 1e-9))
     np.testing.assert_allclose([float(r["peak_stress_MPa"]) for r in rows], result.stress / 1e6, rtol=1e-12)
     assert main(["campaign", "--standard", "ista-2a", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out

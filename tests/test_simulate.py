@@ -2,6 +2,7 @@
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -87,7 +88,9 @@ def test_vmap_simulate_equals_loop():
 
 def test_flags_under_jit_and_eager_errors():
     scene = bd.Scene.default()
-    bad = scene.replace(**{"contact.restitution": 1.5})
+    with pytest.raises(ValueError, match=r"contact.restitution = 1.5 .* \[0, 1\]"):
+        scene.replace(**{"contact.restitution": 1.5})
+    bad = eqx.tree_at(lambda s: s.contact.restitution, scene, jnp.asarray(1.5))
     res = jax.jit(bd.simulate)(bad)
     assert int(res.flags) & bd.Flag.RESTITUTION_RANGE
     assert np.isnan(float(res.peak.stress))

@@ -1,0 +1,185 @@
+"""Scene files: strict TOML in, TOML out.
+
+A scene file has the sections `[housing]`, `[board]`, `[placement]`, `[drop]` and `[contact]`, in SI units, with
+angles in degrees under keys ending in `_deg` (`orientation_deg`, `angle_deg`). It either gives every required key
+of every section, or names the embedded scene it changes with a top-level `extends = "default"` and gives only
+what differs. Keys that may always be left out, because leaving them out means something physical rather than
+borrowing a number from another device: `radius_of_gyration` (a uniform plate's), `axial_force`, `damping_ratio`,
+`spin` and `horizontal_speed` (all 0).
+
+Reading is strict: a value of the wrong type (a string, a bool, a list where a number is meant), an unknown key
+(with a "did you mean"), a bare angle key (it would be read as radians), a missing key or section, a value out of
+range: each is a `ValueError` that names the file, the section, the key and the valid range.
+"""
+
+import difflib
+import importlib.resources
+import tomllib
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._checks import DEG, Range, as_float
+from ._scene import MAX_ANGLE, SECTIONS, Scene
+
+ANGLE_KEYS = {("placement", "angle"), ("drop", "orientation")}
+OPTIONAL_KEYS = {
+    ("housing", "radius_of_gyration"),
+    ("board", "axial_force"),
+    ("board", "damping_ratio"),
+    ("drop", "spin"),
+    ("drop", "horizontal_speed"),
+}
+_DEG_RANGE = Range(-MAX_ANGLE / DEG, MAX_ANGLE / DEG, unit="deg")
+
+
+def embedded_scenes() -> list[str]:
+    """Names of the scenes shipped in the package (`load_scene(name)` loads one)."""
+    folder = importlib.resources.files("beamdrop_jax") / "scenes"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def _scene_path(path) -> Path:
+    text = str(path)
+    if not text.endswith(".toml") and "/" not in text and "\\" not in text and not Path(text).exists():
+        resource = importlib.resources.files("beamdrop_jax") / "scenes" / f"{text}.toml"
+        if resource.is_file():
+            return Path(str(resource))
+        raise FileNotFoundError(f"no embedded scene {text!r} and no such file; embedded scenes: "
+                                f"{', '.join(embedded_scenes())}")
+    return Path(path)
+
+
+def file_keys(section: str) -> list[str]:
+    """The keys a scene file's `[section]` takes (angles under `_deg`)."""
+    return [f"{name}_deg" if (section, name) in ANGLE_KEYS else name for name in SECTIONS[section].RANGES]
+
+
+def _read_toml(path: Path, source: str) -> dict:
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as err:
+        raise ValueError(f"{source}: not valid TOML: {err}") from None
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{source}: no such scene file") from None
+    except OSError as err:
+        raise ValueError(f"{source}: cannot be read: {err.strerror or err}") from None
+
+
+def _suggest(word: str, choices) -> str:
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    return f"did you mean {close[0]!r}? " if close else ""
+
+
+def _section_kwargs(section: str, table, source: str, complete: bool) -> dict:
+    """Constructor arguments of one section, each value checked for type and range."""
+    where = f"{source}: [{section}]"
+    if not isinstance(table, dict):
+        raise ValueError(f"{where} must be a table of keys, got {table!r}")
+    cls = SECTIONS[section]
+    keys = file_keys(section)
+    kwargs = {}
+    for key, value in table.items():
+        if (section, key) in ANGLE_KEYS:
+            raise ValueError(f"{where} {key} = {value!r}: angles in scene files are in degrees under "
+                             f"'{key}_deg' (a bare '{key}' would be read as radians)")
+        if key not in keys:
+            raise ValueError(f"{where}: unknown key {key!r}; {_suggest(key, keys)}valid keys: {', '.join(keys)}")
+        name = key.removesuffix("_deg") if (section, key.removesuffix("_deg")) in ANGLE_KEYS else key
+        valid = _DEG_RANGE if name != key else cls.RANGES[name][0]
+        shown = f"{where} {key}"
+        if name == "centre" and not (isinstance(value, list) and len(value) == 2):
+            raise ValueError(f"{shown} = {value!r}: must be a pair [c1, c2] of numbers in m")
+        if name != "centre" and isinstance(value, (list, dict)):
+            raise ValueError(f"{shown} = {value!r}: must be a single number; valid: {valid}")
+        number = as_float(value, shown, valid)
+        valid.require(number, shown)
+        kwargs[name] = number * DEG if name != key else number
+    if complete:
+        missing = [k for k in keys if k not in table and (section, k.removesuffix("_deg")) not in OPTIONAL_KEYS]
+        if missing:
+            raise ValueError(f"{where}: missing {', '.join(repr(k) for k in missing)} (give every key, or start "
+                             "the file with extends = \"default\" to change only some)")
+    try:
+        return cls(**kwargs)
+    except ValueError as err:
+        raise ValueError(f"{where}: {err}") from None
+
+
+def scene_from_dict(data: dict, source: str = "scene") -> Scene:
+    """Build a scene from a TOML-shaped dict (see the module notes); `source` names it in errors."""
+    data = dict(data)
+    extends = data.pop("extends", None)
+    unknown = [k for k in data if k not in SECTIONS]
+    if unknown:
+        raise ValueError(f"{source}: unknown section or key {unknown[0]!r}; {_suggest(unknown[0], SECTIONS)}"
+                         f"valid sections: {', '.join(SECTIONS)} (and a top-level extends = \"SCENE\")")
+    if extends is not None:
+        if not isinstance(extends, str) or extends not in embedded_scenes():
+            raise ValueError(f"{source}: extends = {extends!r}; valid: one of the embedded scenes "
+                             f"{', '.join(embedded_scenes())}")
+        base = _read_toml(_scene_path(extends), extends)
+        for section, table in data.items():
+            if not isinstance(table, dict):
+                raise ValueError(f"{source}: [{section}] must be a table of keys, got {table!r}")
+            merged = dict(base.get(section, {}))
+            for key in table:
+                # A key given in the file replaces the base's, in whichever unit the file uses.
+                merged.pop(key.removesuffix("_deg") + "_deg", None)
+                merged.pop(key.removesuffix("_deg"), None)
+            merged.update(table)
+            base[section] = merged
+        data = base
+    # The sections that are there first: a typo in one explains more than the sections that are missing.
+    parts = {section: _section_kwargs(section, data[section], source, complete=True)
+             for section in SECTIONS if section in data}
+    missing = [s for s in SECTIONS if s not in parts]
+    if missing:
+        raise ValueError(f"{source}: missing section(s) {', '.join(f'[{s}]' for s in missing)} (give every "
+                         "section, or start the file with extends = \"default\" to change only some)")
+    try:
+        return Scene(**parts)
+    except ValueError as err:
+        raise ValueError(f"{source}: {err}") from None
+
+
+def load_scene(path) -> Scene:
+    """Load a scene from a TOML file, or an embedded scene by name (`embedded_scenes()`: `"default"`, ...).
+
+    Strict: see the module notes. Errors are `ValueError`s that name the file, the key and the valid range
+    (`FileNotFoundError` for a missing file)."""
+    resolved = _scene_path(path)
+    return scene_from_dict(_read_toml(resolved, str(path)), str(path))
+
+
+def _toml_value(x) -> str:
+    if isinstance(x, list):
+        return "[" + ", ".join(_toml_value(v) for v in x) + "]"
+    return repr(float(x))
+
+
+def scene_to_dict(scene: Scene) -> dict:
+    """The TOML-shaped dict of a concrete scene (angles in degrees under `_deg` keys)."""
+    out = {}
+    for section, cls in SECTIONS.items():
+        module = getattr(scene, section)
+        fields = {}
+        for name in cls.RANGES:
+            value = np.asarray(jnp.asarray(getattr(module, name))).tolist()
+            if (section, name) in ANGLE_KEYS:
+                fields[f"{name}_deg"] = value / DEG
+            else:
+                fields[name] = value
+        out[section] = fields
+    return out
+
+
+def save_scene(scene: Scene, path) -> None:
+    """Write a concrete scene as a complete TOML scene file (round-trips through `load_scene`)."""
+    lines = ["# beamdrop_jax scene (SI units; angles in degrees under *_deg keys)"]
+    for section, fields in scene_to_dict(scene).items():
+        lines.append(f"\n[{section}]")
+        lines += [f"{k} = {_toml_value(v)}" for k, v in fields.items()]
+    Path(path).write_text("\n".join(lines) + "\n")
