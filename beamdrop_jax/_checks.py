@@ -35,6 +35,7 @@ class Flag(enum.IntFlag):
     ANGLE_RANGE = 8192
     NONFINITE_RESULT = 16384
     CONTACT_SEARCH_GAVE_UP = 32768
+    CONTACT_MATRIX = 65536
 
     @classmethod
     def describe(cls, flags) -> list[str]:

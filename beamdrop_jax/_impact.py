@@ -23,10 +23,10 @@ import enum
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._checks import float_dtype
-from ._checks import Flag, flag_if, in_range, combine
+from ._checks import Flag, Range, as_float, combine, flag_if, float_dtype, is_concrete
 
 
 class ImpactMode(enum.IntEnum):
@@ -190,6 +190,28 @@ def _path(B, v0, mu) -> _Path:
     return _Path(Pn_s, has_stick, dPt1, dPt2, dC1, dC2, C0, stays_stuck)
 
 
+FRICTION = Range(0.0)
+RESTITUTION = Range(0.0, 1.0)
+
+
+def _positive_definite(B):
+    """Finite, symmetric to round-off, and positive definite (traceable)."""
+    scale = jnp.max(jnp.abs(B))
+    symmetric = jnp.abs(B[0, 1] - B[1, 0]) <= 1e-12 * scale
+    det = B[0, 0] * B[1, 1] - B[0, 1] * B[1, 0]
+    return jnp.all(jnp.isfinite(B)) & symmetric & (B[0, 0] > 0) & (det > 0)
+
+
+def _check_eagerly(B, v0, mu, e):
+    FRICTION.require(mu, "friction")
+    RESTITUTION.require(e, "restitution")
+    if not np.all(np.isfinite(np.asarray(v0))):
+        raise ValueError(f"v0 = {np.asarray(v0).tolist()}: the approach velocity (S0, C0) must be finite, m/s")
+    if np.ndim(B) == 2 and not bool(_positive_definite(B)):
+        raise ValueError(f"B = {np.asarray(B).tolist()}: the contact's inverse inertia must be a finite, symmetric, "
+                         "positive definite 2 x 2 matrix [[B1, -B3], [-B3, B2]] (B1 > 0, B1 B2 - B3^2 > 0), 1/kg")
+
+
 def routh_impulse(
     B: Float[Array, "2 2"],
     v0: Float[Array, "2"],
@@ -216,10 +238,14 @@ def routh_impulse(
     """
     if law not in LAWS:
         raise ValueError(f"law = {law!r}; valid laws: {', '.join(LAWS)}")
-    B = jnp.asarray(B, dtype=float_dtype())
-    v0 = jnp.asarray(v0, dtype=float_dtype())
-    mu = jnp.asarray(friction, dtype=float_dtype())
-    e = jnp.asarray(restitution, dtype=float_dtype())
+    B = as_float(B, "B", "a symmetric positive definite 2 x 2 matrix, 1/kg")
+    v0 = as_float(v0, "v0", "(S0, C0), finite, m/s")
+    mu = as_float(friction, "friction", FRICTION)
+    e = as_float(restitution, "restitution", RESTITUTION)
+    if B.shape[-2:] != (2, 2) or v0.shape[-1:] != (2,):
+        raise ValueError(f"B must have shape (2, 2) and v0 shape (2,); got {B.shape} and {v0.shape}")
+    if is_concrete(B, v0, mu, e):
+        _check_eagerly(B, v0, mu, e)
     separating = v0[1] > 0
     # Separating contacts are computed as if C0 = 0 so every intermediate stays finite; the result is zeroed.
     v0_used = jnp.stack([v0[0], jnp.minimum(v0[1], 0.0)])
@@ -256,8 +282,10 @@ def routh_impulse(
     vertices = jnp.stack([jnp.zeros(2, dtype=P.dtype), jnp.stack([path.Pt(Pn_mid), Pn_mid]), P])
     flags = combine(
         flag_if(separating, Flag.SEPARATING_CONTACT),
-        flag_if(~in_range(e, 0.0, 1.0), Flag.RESTITUTION_RANGE),
-        flag_if(~in_range(mu, 0.0), Flag.FRICTION_NEGATIVE),
+        flag_if(~RESTITUTION.contains(e), Flag.RESTITUTION_RANGE),
+        flag_if(~FRICTION.contains(mu), Flag.FRICTION_NEGATIVE),
+        flag_if(~jnp.all(jnp.isfinite(v0)), Flag.NONFINITE_INPUT),
+        flag_if(~_positive_definite(B), Flag.CONTACT_MATRIX),
     )
     return ImpactResult(
         P=P,

@@ -7,7 +7,6 @@ N_s = (E b h / (2 L)) integral of u_x^2 dx = (E b h / 4) sum_j (j pi / L)^2 q_j^
 the modes (a Duffing-type hardening).
 """
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -17,22 +16,14 @@ from ._board import modal_velocity_jumps, natural_frequencies, support_participa
 from ._motion import HalfSine, Record
 from ._scene import Board
 
-SOLVERS = {
-    "Tsit5": diffrax.Tsit5,
-    "Dopri5": diffrax.Dopri5,
-    "Dopri8": diffrax.Dopri8,
-    "Kvaerno3": diffrax.Kvaerno3,
-    "Kvaerno5": diffrax.Kvaerno5,
-    "ImplicitEuler": diffrax.ImplicitEuler,
-    "Heun": diffrax.Heun,
-    "Bosh3": diffrax.Bosh3,
-}
+# Names of diffrax solvers; diffrax itself is imported when a solve needs it (it takes a second to import).
+SOLVERS = ("Tsit5", "Dopri5", "Dopri8", "Kvaerno3", "Kvaerno5", "ImplicitEuler", "Heun", "Bosh3")
 
 
 class DiffraxModes(eqx.Module):
     """q(t) from a dense diffrax solution (callable; a pytree, so it can be differentiated and batched)."""
 
-    solution: diffrax.Solution
+    solution: eqx.Module  # a diffrax.Solution
     n_modes: int = eqx.field(static=True)
 
     def __call__(self, t) -> Float[Array, " n"]:
@@ -106,11 +97,13 @@ def solve_modes(
     if solver not in SOLVERS:
         raise ValueError(f"Numerics.solver = {solver!r}; valid solvers: {', '.join(SOLVERS)}")
     y0 = jnp.concatenate([jnp.zeros(n_modes), v0])
+    import diffrax
+
     pid = diffrax.PIDController(rtol=rtol, atol=atol, dtmax=dtmax)
     controller = diffrax.ClipStepSizeController(pid, jump_ts=jumps)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(rhs),
-        SOLVERS[solver](),
+        getattr(diffrax, solver)(),
         t0=0.0,
         t1=window,
         dt0=None,

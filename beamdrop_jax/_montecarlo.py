@@ -87,7 +87,7 @@ class DropDistribution(eqx.Module):
                 values = jax.random.uniform(k, (n,), minval=a, maxval=b, dtype=float_dtype())
             else:
                 values = a * jnp.exp(b * jax.random.normal(k, (n,), dtype=float_dtype()))
-            out = out.replace(**{path: values})
+            out = out.replace(check_ranges=False, **{path: values})
         return out
 
 

@@ -6,18 +6,19 @@ R_1 = W/2 - margin - L/2 |cos phi| and R_2 = H/2 - margin - L/2 |sin phi|. Every
 feasible placement, so the optimiser can never return one outside the housing.
 """
 
+import functools
 import math
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 from jaxtyping import Array, Float, Int
 from tqdm import tqdm
 
 from ._checks import float_dtype
-from ._scene import Placement, Scene
+from ._checks import Flag, combine
+from ._scene import Placement, Scene, check_scene, scene_flags
 from ._simulate import Numerics, peak_stress
 
 OBJECTIVES = ("mean", "max", "cvar")
@@ -157,7 +158,7 @@ def optimize_placement(
     alpha: float = 0.9,
     numerics: Numerics | None = None,
     steps: int = 100,
-    optimizer: optax.GradientTransformation | None = None,
+    optimizer=None,
     starts: int = 4,
     margin: float = 0.0,
     key=None,
@@ -184,9 +185,11 @@ def optimize_placement(
     numerics = Numerics(n_modes=8) if numerics is None else numerics
     if orientations is None:
         orientations = np.radians(np.linspace(15.0, 75.0, 7))
+    check_scene(scene)
     drops = drop_set(scene, orientations, heights)
     n_drops = int(drops.drop.orientation.shape[0])
-    optimizer = _DEFAULT_OPTIMIZER if optimizer is None else optimizer
+    _check_drops(drops, numerics)
+    optimizer = _default_optimizer() if optimizer is None else optimizer
     key = jax.random.PRNGKey(0) if key is None else key
 
     u0 = unconstrained_from_placement(scene, scene.placement, margin)
@@ -226,7 +229,29 @@ def optimize_placement(
     )
 
 
-_DEFAULT_OPTIMIZER = optax.adam(0.05)
+
+
+def _check_drops(drops: Scene, numerics: Numerics) -> None:
+    """Every drop of the set must be inside the model: a flagged drop would make the objective NaN (and its
+    gradient zero), so the optimiser would return a non-answer. Name the drops and the reasons instead."""
+    from ._kinematics import housing_impact
+
+    flags = np.asarray(jax.vmap(lambda s: combine(scene_flags(s), housing_impact(s, law=numerics.law).flags))(drops))
+    bad = np.flatnonzero(flags)
+    if bad.size:
+        th, h = np.asarray(drops.drop.orientation), np.asarray(drops.drop.height)
+        listed = "; ".join(f"orientation {np.degrees(th[i]):.4g} deg, height {h[i]:.4g} m: "
+                           f"{', '.join(Flag.describe(flags[i]))}" for i in bad[:5])
+        raise ValueError(f"optimize_placement: {bad.size} of {flags.size} drops are outside the model ({listed}); "
+                         "leave them out of orientations/heights (flat landings are multiples of 90 deg with spin)")
+
+
+@functools.cache
+def _default_optimizer():
+    # One object for every call, so the compiled step is reused; optax is imported when used (it takes a second).
+    import optax
+
+    return optax.adam(0.05)
 
 
 @eqx.filter_jit
@@ -234,6 +259,8 @@ def _step(U, state, scene, drops, optimizer, config):
     f = placement_objective(scene, drops, *config)
     values, grads = jax.vmap(jax.value_and_grad(f))(U)
     updates, state = jax.vmap(optimizer.update)(grads, state, U)
+    import optax
+
     return optax.apply_updates(U, updates), state, values
 
 

@@ -81,7 +81,7 @@ def plot_stress_map(fields, response, *, ax=None):
             ax.legend(loc="upper right", fontsize=8)
         ax.set_xlabel("time after impact (ms)" if count == 1 else f"ms after impact {i + 1} (t = {start * 1e3:.1f} ms)")
     axes[0].set_ylabel("position along the board from end A (mm)")
-    fig.colorbar(mesh, ax=list(axes), label="bending stress (MPa), normal-side face")
+    fig.colorbar(mesh, ax=list(axes), label="bending stress (MPa) on the board's normal-side face; + is tension")
     title = f"Stress over the board and time ({int(response.n_modes)} modes)"
     if count > 1:
         fig.suptitle(title + f", {count} impacts")
@@ -250,7 +250,9 @@ def plot_placement(scene, result, landscape, *, axes=None):
     ax1.plot(path[-1, 0] * 1e3, path[-1, 1] * 1e3, "r*", ms=14, label="optimum")
     ax1.set_xlabel("board centre c1 along the width (mm)")
     ax1.set_ylabel("board centre c2 along the height (mm)")
-    ax1.set_title(f"Objective at the optimal angle {np.degrees(float(result.placement.angle)):.1f} deg")
+    ax1.set_title(f"Objective over the centre at the optimum's angle {np.degrees(float(result.placement.angle)):.1f} "
+                  f"deg\n(the path also turns: {np.degrees(path[0, 2]):.1f} -> {np.degrees(path[-1, 2]):.1f} deg; "
+                  "drawn at its centres)", fontsize=9)
     ax1.legend(fontsize=8, loc="lower right")
     _draw_housing(ax2, scene, scene.placement, color="tab:gray", lw=4, ls="--",
                   label=f"before: {float(result.initial_value) / 1e6:.1f} MPa")
@@ -281,8 +283,11 @@ def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None):
     valid = np.asarray(result.valid)
     values = np.asarray(getattr(result, f"peak_{quantity}"))[valid] * scale
     orient = np.broadcast_to(np.asarray(result.samples.drop.orientation), valid.shape)[valid]
-    ax1.scatter(orient, values, s=2, alpha=0.4, c=values, cmap="viridis", rasterized=True)
-    ax1.set_title(f"peak {quantity} ({unit}) against drop orientation", pad=14)
+    dots = ax1.scatter(orient, values, s=2, alpha=0.4, c=values, cmap="viridis", rasterized=True)
+    fig.colorbar(dots, ax=ax1, pad=0.12, shrink=0.8, label=f"peak {quantity} ({unit})")
+    ax1.set_rlabel_position(112.5)  # radial labels in the quiet sector, off the curve
+    ax1.tick_params(axis="y", labelsize=7, labelcolor="0.35")
+    ax1.set_title(f"peak {quantity} ({unit}; radius) against drop orientation (deg)", pad=18, fontsize=10)
     ordered = np.sort(values)
     ccdf = 1.0 - np.arange(1, ordered.size + 1) / ordered.size
     ax2.semilogy(ordered[:-1], ccdf[:-1], color="tab:blue", lw=2, label=f"{ordered.size} valid drops")
@@ -374,18 +379,21 @@ def plot_stability(study: dict):
     """The stability map: four panels from `stability_study`."""
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(2, 2, figsize=(12, 9), layout="constrained")
+    fig, axes = plt.subplots(2, 2, figsize=(13, 10), layout="constrained")
     ax = axes[0, 0]
+    any_failed = False
     for solver in sorted({r["solver"] for r in study["stiffness"]}):
         rs = [r for r in study["stiffness"] if r["solver"] == solver]
         ax.loglog([r["top_frequency_hz"] for r in rs], [r["steps"] for r in rs], "o-",
                   label=f"{solver} (rtol {rs[0]['rtol']:g})")
         for r in rs:
             if r["failed"]:
+                any_failed = True
                 ax.plot(r["top_frequency_hz"], r["steps"], "rx", ms=12)
     ax.set_xlabel("frequency of the highest mode kept (Hz)")
     ax.set_ylabel("solver steps over the window")
-    ax.set_title("Stiffness: explicit steps grow with the top mode (x = max_steps hit)")
+    ax.set_title("Stiffness: steps grow with the top mode" + (" (x: max_steps hit)" if any_failed else ""),
+                 fontsize=10)
     ax.legend(fontsize=8)
     ax.grid(True, which="both", alpha=0.3)
 
@@ -393,12 +401,19 @@ def plot_stability(study: dict):
     for solver in sorted({r["solver"] for r in study["tolerance"]}):
         for f32, style in ((False, "o-"), (True, "s--")):
             rs = [r for r in study["tolerance"] if r["solver"] == solver and r["float32"] == f32]
-            if rs:
-                ax.loglog([r["rtol"] for r in rs], [max(r["error"], 1e-16) if np.isfinite(r["error"]) else 1.0
-                                                    for r in rs], style, label=f"{solver} {'f32' if f32 else 'f64'}")
+            ok = [r for r in rs if np.isfinite(r["error"]) and not r["flags"]]
+            failed = [r for r in rs if r not in ok]
+            if ok:
+                line, = ax.loglog([r["rtol"] for r in ok], [max(r["error"], 1e-16) for r in ok], style,
+                                  label=f"{solver} {'f32' if f32 else 'f64'}")
+                colour = line.get_color()
+            if failed:
+                ax.loglog([r["rtol"] for r in failed], [1.0] * len(failed), "x", ms=10, mew=2,
+                          color=colour if ok else "tab:red",
+                          label=f"{solver} {'f32' if f32 else 'f64'}: failed (flagged)")
     ax.set_xlabel("diffrax rtol")
-    ax.set_ylabel("peak-stress error against the closed form (1 = failed, flagged)")
-    ax.set_title("Tolerance: error floors (float32 near 1e-6) and first-order damping")
+    ax.set_ylabel("peak-stress error against the closed form (x at 1: failed)")
+    ax.set_title("Tolerance: float32 floors near 1e-6; first-order damping", fontsize=10)
     ax.legend(fontsize=7, ncol=2)
     ax.grid(True, which="both", alpha=0.3)
 
@@ -409,7 +424,7 @@ def plot_stability(study: dict):
         ax.semilogx([r["n_modes"] for r in rs], [r["stress"] / 1e6 for r in rs], "o-", label=label)
     ax.set_xlabel("modes")
     ax.set_ylabel("peak stress (MPa)")
-    ax.set_title("Ideal impulse never converges; real pulses (0.05-1 ms) do")
+    ax.set_title("Ideal impulse never converges; 0.05-1 ms pulses do", fontsize=10)
     ax.legend(fontsize=8)
     ax.grid(True, which="both", alpha=0.3)
 
@@ -421,6 +436,6 @@ def plot_stability(study: dict):
     ax2 = ax.twinx()
     ax2.plot([r["load_ratio"] for r in rs], [r["stress"] / 1e6 for r in rs], "s--", color="tab:red")
     ax2.set_ylabel("peak stress (MPa)", color="tab:red")
-    ax.set_title("Approaching buckling: f1 -> 0, window and peak grow")
+    ax.set_title("Approaching buckling: f1 -> 0, the peak grows", fontsize=10)
     ax.grid(True, alpha=0.3)
     return fig

@@ -259,20 +259,23 @@ class Scene(eqx.Module):
 
         return load_scene("default")
 
-    def replace(self, **paths) -> "Scene":
+    def replace(self, *, check_ranges: bool = True, **paths) -> "Scene":
         """A copy with fields replaced by dotted path, e.g. `scene.replace(**{"drop.height": 1.0})`.
 
         Values are checked as the constructors check them (type, range; the board inside the housing and below
-        its buckling load), naming the path; arrays with a leading batch axis are welcome."""
+        its buckling load), naming the path; arrays with a leading batch axis are welcome. `check_ranges=False`
+        keeps out-of-range values (types are still checked), to be flagged per scene under `jit`, as random
+        drops are."""
         out = self
         for path, value in paths.items():
             cls, name = _field_at(path)
             valid = cls.RANGES[name][0]
             new = as_float(value, path, valid)
-            valid.require(new, path)
+            if check_ranges:
+                valid.require(new, path)
             section = path.split(".")[0]
             out = eqx.tree_at(lambda s, section=section, name=name: getattr(getattr(s, section), name), out, new)
-        if is_concrete(out):
+        if check_ranges and is_concrete(out):
             out.board.__check_init__()
             _check_fits(out)
         return out

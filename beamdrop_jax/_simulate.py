@@ -358,7 +358,9 @@ def _respond(board: Board, motion, numerics: Numerics, flags) -> Response:
     error = jnp.abs(kappa.value - kappa_check.value) / jnp.maximum(kappa.value, jnp.finfo(window.dtype).tiny)
 
     half_h = board.thickness / 2
-    flags = combine(flags, board.flags(), flag_if(failed, Flag.SOLVER_FAILED))
+    # Valid inputs whose magnitudes overflow or underflow the arithmetic: a flag, never a silent NaN.
+    nonfinite = ~jnp.isfinite(kappa.value) | ~jnp.isfinite(deflection.value)
+    flags = combine(flags, board.flags(), flag_if(failed, Flag.SOLVER_FAILED), flag_if(nonfinite, Flag.NONFINITE_RESULT))
     bad = flags != 0
     nan = lambda v: jnp.where(bad, jnp.nan, v)  # noqa: E731 - flagged results are NaN, never a wrong number
     peak = Peak(
@@ -497,7 +499,8 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     scale = {"stress": board.youngs_modulus * board.thickness / 2, "strain": board.thickness / 2, "deflection": 1.0}
     values = jnp.stack([scale[q] * peaks[kinds.index("deflection" if q == "deflection" else "curvature")]
                         for q in quantities])
-    flags = combine(scene_flags(scene), impact_flags, board.flags(), flag_if(S.failed, Flag.SOLVER_FAILED))
+    flags = combine(scene_flags(scene), impact_flags, board.flags(), flag_if(S.failed, Flag.SOLVER_FAILED),
+                    flag_if(~jnp.all(jnp.isfinite(values)), Flag.NONFINITE_RESULT))
     return jnp.where(flags != 0, jnp.nan, values), flags
 
 

@@ -20,7 +20,7 @@ def test_every_help_works_and_gives_units(argv, capsys):
     assert stop.value.code == 0
     out = capsys.readouterr().out
     assert "usage: beamdrop" in out and "%%" not in out
-    if argv[0] in ("drop", "montecarlo", "sensitivity"):
+    if argv[0] in ("drop", "montecarlo"):
         assert "(MPa)" in out or "microstrain" in out
 
 
@@ -250,3 +250,63 @@ def test_montecarlo_rejects_invalid_base_scene_and_summaries_never_crash():
     for limit in (float("nan"), -1.0):
         with pytest.raises(ValueError, match="limit"):
             res.exceedance(limit)
+
+
+def test_impact_law_checks_its_inputs_eagerly_and_flags_them_under_jit():
+    import jax
+
+    B = [[2.5, -1.5], [-1.5, 2.5]]
+    cases = [
+        ((B, (float("nan"), -1.0), 0.3, 0.5), "v0"),
+        (([[1.0, 2.0], [2.0, 1.0]], (0.0, -1.0), 0.3, 0.5), "positive definite"),
+        (([[2.5, -1.5], [-1.0, 2.5]], (0.0, -1.0), 0.3, 0.5), "symmetric"),
+        ((B, (0.0, -1.0), -0.1, 0.5), "friction"),
+        ((B, (0.0, -1.0), 0.3, 1.5), "restitution"),
+        ((B, (0.0, -1.0), True, 0.5), "friction"),
+    ]
+    for args, word in cases:
+        with pytest.raises(ValueError, match=word):
+            bd.routh_impulse(*args)
+    flags = jax.jit(lambda *a: bd.routh_impulse(*a).flags)
+    assert int(flags(jnp_array(B), jnp_array((float("nan"), -1.0)), 0.3, 0.5)) & bd.Flag.NONFINITE_INPUT
+    assert int(flags(jnp_array([[1.0, 2.0], [2.0, 1.0]]), jnp_array((0.0, -1.0)), 0.3, 0.5)) & bd.Flag.CONTACT_MATRIX
+    assert int(flags(jnp_array(B), jnp_array((0.0, -1.0)), 0.3, 0.5)) == 0
+
+
+def jnp_array(x):
+    import jax.numpy as jnp
+
+    return jnp.asarray(x, float)
+
+
+def test_readme_python_example_runs_and_prints(tmp_path):
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    readme = (Path(__file__).parent.parent / "README.md").read_text()
+    code = re.search(r"```python\n(.*?)```", readme, re.S).group(1)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    res = bd.simulate(bd.Scene.default())
+    assert f"{float(res.peak.stress) / 1e6:.6g}" in done.stdout and "peak stress (MPa)" in done.stdout
+    assert "0.219512" in done.stdout
+
+
+def test_optimizer_rejects_drops_outside_the_model_by_name():
+    scene = bd.Scene.default().replace(**{"drop.spin": 1.0})
+    with pytest.raises(ValueError, match=r"1 of 2 drops .*orientation 0 deg.*FLAT_LANDING_WITH_MOTION"):
+        bd.optimize_placement(scene, orientations=[0.0, 0.5], steps=1, starts=1, progress=False)
+
+
+def test_extreme_magnitudes_are_flagged_never_silent():
+    import equinox as eqx
+    import jax
+
+    scene = bd.Scene.default()
+    tiny_density = eqx.tree_at(lambda s: s.board.density, scene, 1e-300)
+    res = jax.jit(bd.simulate)(tiny_density)
+    assert int(res.flags) != 0 and np.isnan(float(res.peak.stress))
+    with pytest.raises(ValueError):
+        bd.simulate(tiny_density)
