@@ -81,7 +81,7 @@ def plot_stress_map(fields, response, *, ax=None):
             ax.legend(loc="upper right", fontsize=8)
         ax.set_xlabel("time after impact (ms)" if count == 1 else f"ms after impact {i + 1} (t = {start * 1e3:.1f} ms)")
     axes[0].set_ylabel("position along the board from end A (mm)")
-    fig.colorbar(mesh, ax=list(axes), label="bending stress (MPa) on the board's normal-side face; + is tension")
+    fig.colorbar(mesh, ax=list(axes), label="bending stress (MPa), normal-side face; + tension")
     title = f"Stress over the board and time ({int(response.n_modes)} modes)"
     if count > 1:
         fig.suptitle(title + f", {count} impacts")
@@ -96,40 +96,35 @@ def _impact_of(impacts, t):
     return int(np.searchsorted(times, t, side="right") - 1)
 
 
-def plot_deflected_board(fields, response, *, ax=None):
+def plot_deflected_board(fields, response, *, thickness=None, ax=None):
     """Deflection relative to the chord AB at the time of peak deflection and at the time of peak stress, with
-    both peaks' positions marked (end A is x = 0). Says so when the deflection exceeds the board's thickness,
-    where linear theory stops holding."""
-    fig, ax = _axes(ax, (7.0, 4.0))
+    both peaks' positions marked (end A is x = 0). With the board's `thickness` (m) it says so when the deflection
+    exceeds it, where small-deflection theory stops holding."""
+    fig, ax = _axes(ax, (7.5, 4.6))
     x_mm = np.asarray(fields.x) * 1e3
     peak = response.peak
-    for when, style, what in ((float(peak.deflection_t), "tab:blue", "peak deflection"),
-                              (float(peak.t), "tab:red", "peak stress")):
+    shapes = {}
+    for when, colour, what in ((float(peak.deflection_t), "tab:blue", "peak deflection"),
+                               (float(peak.t), "tab:red", "peak stress")):
         j = int(np.abs(np.asarray(fields.t) - when).argmin())
-        u_mm = np.asarray(fields.deflection)[:, j] * 1e3
-        ax.plot(x_mm, u_mm, color=style, lw=2, label=f"at {what}, t = {float(fields.t[j]) * 1e3:.3f} ms")
-    ax.plot(float(peak.deflection_x) * 1e3, 0, "|", color="tab:blue", ms=14,
-            label=f"peak deflection {float(peak.deflection) * 1e3:.3g} mm at x = {float(peak.deflection_x) * 1e3:.1f} mm")
+        shapes[what] = np.asarray(fields.deflection)[:, j] * 1e3
+        ax.plot(x_mm, shapes[what], color=colour, lw=2, label=f"shape at {what}, t = {float(fields.t[j]) * 1e3:.3f} ms")
+    xd = float(peak.deflection_x) * 1e3
+    ax.plot(xd, np.interp(xd, x_mm, shapes["peak deflection"]), "o", color="tab:blue",
+            label=f"peak deflection {float(peak.deflection) * 1e3:.3g} mm at x = {xd:.1f} mm")
     ax.axvline(float(peak.x) * 1e3, color="tab:red", ls="--", lw=1,
                label=f"peak stress {float(peak.stress) / 1e6:.3g} MPa at x = {float(peak.x) * 1e3:.1f} mm")
-    ax.plot([x_mm[0], x_mm[-1]], [0, 0], "k^", ms=10, label="supports: end A (x = 0), end B")
+    ax.plot([x_mm[0], x_mm[-1]], [0, 0], "k^", ms=10, label="supports: end A (x = 0) and end B")
     ax.axhline(0, color="0.6", lw=0.8)
     ax.set_xlabel("position along the board from end A (mm)")
-    ax.set_ylabel("deflection from chord AB along the board normal (mm)")
-    ax.set_title("Deflected board (relative to its moving supports)")
-    ax.legend(fontsize=7, loc="best")
+    ax.set_ylabel("deflection from chord AB (mm)")
+    title = "Deflected board, relative to its moving supports (+ along the board normal)"
+    if thickness is not None and float(peak.deflection) > float(thickness):
+        title += (f"\ndeflection {float(peak.deflection) / float(thickness):.2g} x the thickness: beyond "
+                  "small-deflection theory (mid-plane stretching matters)")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
     return fig
-
-
-def _draw_housing(ax, scene, placement, **style):
-    from ._scene import board_ends
-
-    from matplotlib.patches import Rectangle
-
-    W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
-    ax.add_patch(Rectangle((-W / 2, -H / 2), W, H, fill=False, lw=1.5, color="0.3"))
-    ends = np.asarray(board_ends(placement, scene.board.length)) * 1e3
-    ax.plot(ends[:, 0], ends[:, 1], **style)
 
 
 def plot_scene(scene, response=None, *, ax=None):

@@ -238,7 +238,7 @@ def cmd_drop(args, output):
         fields = bd.response_fields(scene, numerics)
         _save(output, bd.plot_scene(scene, res), "scene.png", args)
         _save(output, bd.plot_stress_map(fields, res), "stress_map.png", args)
-        _save(output, bd.plot_deflected_board(fields, res), "deflection.png", args)
+        _save(output, bd.plot_deflected_board(fields, res, thickness=scene.board.thickness), "deflection.png", args)
         _save(output, bd.plot_impacts(scene, res), "impact.png", args)
 
 
