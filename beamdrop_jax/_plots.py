@@ -226,6 +226,17 @@ def plot_impacts(scene, response):
     return fig
 
 
+def _draw_housing(ax, scene, placement, **style):
+    from matplotlib.patches import Rectangle
+
+    from ._scene import board_ends
+
+    W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
+    ax.add_patch(Rectangle((-W / 2, -H / 2), W, H, fill=False, lw=1.5, color="0.3"))
+    ends = np.asarray(board_ends(placement, scene.board.length)) * 1e3
+    ax.plot(ends[:, 0], ends[:, 1], **style)
+
+
 def plot_placement(scene, result, landscape, *, axes=None):
     """Left: the objective over board-centre positions at the optimal angle, with the optimiser's path.
     Right: the housing (body axes, mm) with the board before and after."""

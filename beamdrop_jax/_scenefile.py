@@ -73,8 +73,8 @@ def _suggest(word: str, choices) -> str:
     return f"did you mean {close[0]!r}? " if close else ""
 
 
-def _section_kwargs(section: str, table, source: str, complete: bool) -> dict:
-    """Constructor arguments of one section, each value checked for type and range."""
+def _section(section: str, table, source: str):
+    """One section built from its table, each value checked for type and range, every required key there."""
     where = f"{source}: [{section}]"
     if not isinstance(table, dict):
         raise ValueError(f"{where} must be a table of keys, got {table!r}")
@@ -97,11 +97,19 @@ def _section_kwargs(section: str, table, source: str, complete: bool) -> dict:
         number = as_float(value, shown, valid)
         valid.require(number, shown)
         kwargs[name] = number * DEG if name != key else number
-    if complete:
-        missing = [k for k in keys if k not in table and (section, k.removesuffix("_deg")) not in OPTIONAL_KEYS]
-        if missing:
-            raise ValueError(f"{where}: missing {', '.join(repr(k) for k in missing)} (give every key, or start "
-                             "the file with extends = \"default\" to change only some)")
+    _require_all(where, [repr(k) for k in keys
+                         if k not in table and (section, k.removesuffix("_deg")) not in OPTIONAL_KEYS], "key")
+    return _build(where, cls, kwargs)
+
+
+def _require_all(where: str, missing: list[str], what: str) -> None:
+    if missing:
+        raise ValueError(f"{where}: missing {', '.join(missing)} (give every {what}, or start the file with "
+                         "extends = \"default\" to change only some)")
+
+
+def _build(where: str, cls, kwargs: dict):
+    """`cls(**kwargs)`, its errors prefixed with where they come from."""
     try:
         return cls(**kwargs)
     except ValueError as err:
@@ -133,16 +141,9 @@ def scene_from_dict(data: dict, source: str = "scene") -> Scene:
             base[section] = merged
         data = base
     # The sections that are there first: a typo in one explains more than the sections that are missing.
-    parts = {section: _section_kwargs(section, data[section], source, complete=True)
-             for section in SECTIONS if section in data}
-    missing = [s for s in SECTIONS if s not in parts]
-    if missing:
-        raise ValueError(f"{source}: missing section(s) {', '.join(f'[{s}]' for s in missing)} (give every "
-                         "section, or start the file with extends = \"default\" to change only some)")
-    try:
-        return Scene(**parts)
-    except ValueError as err:
-        raise ValueError(f"{source}: {err}") from None
+    parts = {section: _section(section, data[section], source) for section in SECTIONS if section in data}
+    _require_all(source, [f"section [{s}]" for s in SECTIONS if s not in parts], "section")
+    return _build(source, Scene, parts)
 
 
 def load_scene(path) -> Scene:

@@ -97,7 +97,7 @@ BAD_SCENES = {
                     "youngs_modulus = 22e9\ndensity = 1900.0\n[placement]\ncentre = [0.0, 0.0]\nangle_deg = 0.0\n"
                     "[drop]\norientation_deg = 30.0\nheight = 1.5\n[contact]\nfriction = 0.3\nrestitution = 0.5\n"
                     "duration = 5e-4\n", ["[housing]", "missing 'mass'", "extends"]),
-    "missing_section": ("[housing]\nwidth = 0.15\nheight = 0.075\nmass = 0.18\n", ["missing section", "[board]"]),
+    "missing_section": ("[housing]\nwidth = 0.15\nheight = 0.075\nmass = 0.18\n", ["missing section [board]"]),
     "negative_mass": (EXTENDS + "[housing]\nmass = -0.2\n", ["mass", "(0, inf) kg"]),
     "restitution_high": (EXTENDS + "[contact]\nrestitution = 1.5\n", ["restitution", "[0, 1]"]),
     "nan_height": (EXTENDS + "[drop]\nheight = nan\n", ["height", "finite"]),
@@ -310,3 +310,13 @@ def test_extreme_magnitudes_are_flagged_never_silent():
     assert int(res.flags) != 0 and np.isnan(float(res.peak.stress))
     with pytest.raises(ValueError):
         bd.simulate(tiny_density)
+
+
+def test_thesis_scene_says_its_units_are_not_physical(capsys):
+    scene = bd.load_scene("thesis")
+    notes = bd.response_notes(scene, bd.simulate(scene))
+    assert any("nondimensional" in n for n in notes) and any("ideal impulse" in n for n in notes)
+    assert main(["drop", "--scene", "thesis", "--no-plots", "--no-cache"]) == 0
+    assert "nondimensional" in capsys.readouterr().out
+    default = bd.Scene.default()
+    assert not any("nondimensional" in n for n in bd.response_notes(default, bd.simulate(default)))
