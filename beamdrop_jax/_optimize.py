@@ -231,12 +231,17 @@ def optimize_placement(
 
 
 
+@eqx.filter_jit
+def _drop_flags(drops: Scene, law: str):
+    from ._kinematics import housing_impact
+
+    return jax.vmap(lambda s: combine(scene_flags(s), housing_impact(s, law=law).flags))(drops)
+
+
 def _check_drops(drops: Scene, numerics: Numerics) -> None:
     """Every drop of the set must be inside the model: a flagged drop would make the objective NaN (and its
     gradient zero), so the optimiser would return a non-answer. Name the drops and the reasons instead."""
-    from ._kinematics import housing_impact
-
-    flags = np.asarray(jax.vmap(lambda s: combine(scene_flags(s), housing_impact(s, law=numerics.law).flags))(drops))
+    flags = np.asarray(_drop_flags(drops, numerics.law))
     bad = np.flatnonzero(flags)
     if bad.size:
         th, h = np.asarray(drops.drop.orientation), np.asarray(drops.drop.height)
