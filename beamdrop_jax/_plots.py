@@ -333,8 +333,9 @@ def plot_campaign(result, *, ax=None, limit: float | None = None, scene: str | N
     for i in range(n):
         if not np.isfinite(stress[i]):
             ax.text(i, 0.02 * top, "n/a", ha="center", va="bottom", rotation=90, fontsize=8, color="0.4")
-        elif stress[i] == 0.0:
-            ax.text(i, 0.02 * top, "0", ha="center", va="bottom", fontsize=8)
+        elif stress[i] < 0.01 * top:  # a bar too short to see: say its value (faces 2 and 4 give ~0)
+            shown = "0" if stress[i] < 1e-9 * top else f"{stress[i]:.2g}"  # round-off zero reads as 0
+            ax.text(i, 0.02 * top, shown, ha="center", va="bottom", fontsize=8)
     if worst:
         tie = f" ({len(worst)} drops tie)" if len(worst) > 1 else ""
         ax.annotate(f"worst: {stress[worst[0]]:.1f} MPa{tie}", (worst[0], stress[worst[0]]), xytext=(0, 6),

@@ -81,8 +81,9 @@ def _degrees_list(text):
         parts = text.split(":")
         if len(parts) != 3:
             raise argparse.ArgumentTypeError(f"{text!r}: write 'low:high:count' (e.g. 15:75:7) or 'a,b,c' in degrees")
-        return [float(v) for v in __import__("numpy").linspace(number(parts[0]), number(parts[1]),
-                                                               _int_at_least(1)(parts[2]))]
+        import numpy as np
+
+        return np.linspace(number(parts[0]), number(parts[1]), _int_at_least(1)(parts[2])).tolist()
     try:
         return [number(v) for v in text.split(",")]
     except argparse.ArgumentTypeError as err:
