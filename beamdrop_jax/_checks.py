@@ -34,8 +34,7 @@ class Flag(enum.IntFlag):
     PIVOTING_CONTACT = 4096
     ANGLE_RANGE = 8192
     NONFINITE_RESULT = 16384
-    CONTACT_SEARCH_GAVE_UP = 32768
-    CONTACT_MATRIX = 65536
+    CONTACT_MATRIX = 32768
 
     @classmethod
     def describe(cls, flags) -> list[str]:
@@ -114,7 +113,8 @@ class Range:
 def as_float(value, name: str, valid="", dtype=None):
     """`value` as a float array, or a `ValueError` naming the field when it is not a real number (or an array of
     them): bools, strings, None, complex numbers and objects are rejected, not coerced. Tracers pass through."""
-    if isinstance(value, jax.core.Tracer):
+    if isinstance(value, jax.core.Tracer) or (isinstance(value, jax.Array) and jnp.issubdtype(value.dtype, jnp.floating)):
+        # Already a float array (e.g. millions of sampled drops): no copy to the host to inspect it.
         return jnp.asarray(value, dtype=dtype or float_dtype())
     where = f"; valid: {valid}" if str(valid) else ""
     if isinstance(value, (bool, np.bool_, str, bytes)) or value is None:
