@@ -1,4 +1,7 @@
-"""Peak of |sum_k c_k q_k(t) sin(k pi x / L)| over x in [0, L] and t in [0, window].
+"""Peak of |sum_k c_k q_k(t) sin(k pi x / L)| + sum_k m_k q_k(t)^2 over x in [0, L] and t in [0, window].
+
+The second term (optional, uniform along the board) is the membrane strain of mid-plane stretching, which adds to
+the bending strain on the face in tension.
 
 A coarse grid finds candidate peaks (the largest local maxima in time of the spatial envelope); each is refined
 from the vertex of the parabolas through its grid neighbours by Newton's method on the modal series, steps scaled
@@ -73,12 +76,16 @@ def find_peak(
     candidates: int = 4,
     newton_steps: int = 6,
     refine: bool = True,
+    membrane: Float[Array, " n"] | None = None,
 ) -> FieldPeak:
-    """Peak of |field| with `modal(t) -> q (n,)` the modal coordinates (a pytree callable with `jet(t) -> (q, q',
-    q'')`, e.g. an `eqx.Module`)
-    and `Q = modal.grid_factors(t)` on the grid (see `field_on_grid`)."""
+    """Peak of |field| (+ sum_k membrane_k q_k^2 when `membrane` is given) with `modal(t) -> q (n,)` the modal
+    coordinates (a pytree callable with `jet(t) -> (q, q', q'')`, e.g. an `eqx.Module`) and
+    `Q = modal.grid_factors(t)` on the grid (see `field_on_grid`)."""
     F = field_on_grid(coeffs, Q, x, length)
     A = jnp.abs(F)
+    if membrane is not None:
+        scale, R = Q
+        A = A + (R * scale) ** 2 @ membrane
     # A plain max over x, then arg-maxima only where needed: a full 2-D argmax is a slow variadic reduction.
     envelope = A.max(axis=0)
     if not refine:
@@ -111,7 +118,7 @@ def find_peak(
     t0 = t[idx] + cell_t * vertex(A[where_x, it_lo], mid, A[where_x, it_hi])
 
     # The search itself is not differentiated: only the final evaluation at the maximiser is.
-    coeffs_c, length_c, window_c, modal_c = stop_gradient((coeffs, length, window, modal))
+    coeffs_c, length_c, window_c, modal_c, membrane_c = stop_gradient((coeffs, length, window, modal, membrane))
     k = jnp.arange(1, coeffs.shape[-1] + 1, dtype=float_dtype()) * math.pi / length_c
 
     def value_grad_hess(x, t, sign):
@@ -123,6 +130,10 @@ def find_peak(
         f = jnp.sum(a * sn)
         g = (jnp.sum(a * k * cs), jnp.sum(b * sn))
         H = (-jnp.sum(a * k * k * sn), jnp.sum(b * k * cs), jnp.sum(sign * coeffs_c * ddq * sn))
+        if membrane is not None:
+            f = f + jnp.sum(membrane_c * q * q)
+            g = (g[0], g[1] + 2 * jnp.sum(membrane_c * q * dq))
+            H = (H[0], H[1], H[2] + 2 * jnp.sum(membrane_c * (dq * dq + q * ddq)))
         return f, g, H
 
     def refine_one(x0, t0, sign, x_grid, t_grid, f_grid):
@@ -171,5 +182,7 @@ def find_peak(
     t_star = jnp.where(at_end, window, p_best[1])
     q = modal(t_star)
     value = jnp.abs(jnp.sum(coeffs * q * mode_shapes(x_star, length, q.shape[-1])))
+    if membrane is not None:
+        value = value + jnp.sum(membrane * q * q)
     err = jax.lax.stop_gradient(gain_all[best] / jnp.maximum(f_all[best], jnp.finfo(A.dtype).tiny))
     return FieldPeak(value, x_star, t_star, err)

@@ -128,9 +128,12 @@ class Peak(eqx.Module):
 
     `stress` (Pa), `strain` (-), where (`x` from end A, m) and when (`t`, s); `deflection` (m, relative to the
     chord AB) with its own `deflection_x`, `deflection_t`; `search_error`: relative error estimate of the stress
-    peak search."""
+    peak search. With mid-plane stretching (`Numerics(stretching=True)`) `stress` and `strain` are those of the
+    face in tension, bending plus membrane, and `membrane_stress` (Pa) is the membrane part at the peak (0
+    without stretching)."""
 
     stress: Float[Array, ""]
+    membrane_stress: Float[Array, ""]
     strain: Float[Array, ""]
     x: Float[Array, ""]
     t: Float[Array, ""]
@@ -189,6 +192,7 @@ class Response(eqx.Module):
             "check_modes": self.check_modes,
             "peak_stress_MPa": p.stress / 1e6,
             "peak_strain_microstrain": p.strain * 1e6,
+            **({"peak_membrane_stress_MPa": p.membrane_stress / 1e6} if float(p.membrane_stress) else {}),
             "peak_stress_x_mm": p.x * 1e3,
             "peak_stress_t_ms": p.t * 1e3,
             "peak_deflection_mm": p.deflection * 1e3,
@@ -340,12 +344,23 @@ def _setup(board: Board, motion, numerics: Numerics, with_check: bool) -> _Setup
     return _Setup(used, check, window, modal, failed, x, t, Q, k, -(wavenumbers(board, M) ** 2))
 
 
-def _search(setup: _Setup, board: Board, numerics: Numerics, coeffs) -> FieldPeak:
-    """Peaks of the fields with modal coefficients `coeffs` (rows), in one batched search (one compiled copy)."""
+def _membrane(board: Board, numerics: Numerics, rows, is_curvature) -> Array | None:
+    """Per row, the weights m_k of the membrane strain of mid-plane stretching, (1/4) sum_k (k pi/L)^2 q_k^2, in
+    curvature units (divided by h/2) for curvature rows and zero for deflection rows; None without stretching."""
+    if not numerics.stretching:
+        return None
+    kappa2 = wavenumbers(board, numerics.computed_modes) ** 2
+    return jnp.stack([kappa2 / (2 * board.thickness) * (c != 0) * curv for c, curv in zip(rows, is_curvature)])
+
+
+def _search(setup: _Setup, board: Board, numerics: Numerics, coeffs, membrane=None) -> FieldPeak:
+    """Peaks of the fields with modal coefficients `coeffs` (rows; plus the membrane term of each row when
+    `membrane` is given), in one batched search (one compiled copy)."""
     search = dict(candidates=numerics.candidates, newton_steps=numerics.newton_steps, refine=numerics.refine)
     return jax.vmap(
-        lambda c: find_peak(c, setup.modal, setup.Q, setup.x, setup.t, board.length, setup.window, **search)
-    )(coeffs)
+        lambda c, m: find_peak(c, setup.modal, setup.Q, setup.x, setup.t, board.length, setup.window, membrane=m,
+                               **search)
+    )(coeffs, membrane)
 
 
 def _respond(board: Board, motion, numerics: Numerics, flags) -> Response:
@@ -353,7 +368,7 @@ def _respond(board: Board, motion, numerics: Numerics, flags) -> Response:
     used, check, window, k, curvature, failed = S.used, S.check, S.window, S.k, S.curvature, S.failed
     M = numerics.computed_modes
     coeffs = jnp.stack([curvature * (k <= used), curvature * (k <= check), jnp.ones(M) * (k <= used)])
-    peaks = _search(S, board, numerics, coeffs)
+    peaks = _search(S, board, numerics, coeffs, _membrane(board, numerics, coeffs, (True, True, False)))
     kappa, kappa_check, deflection = (jax.tree_util.tree_map(lambda v: v[i], peaks) for i in range(3))
     error = jnp.abs(kappa.value - kappa_check.value) / jnp.maximum(kappa.value, jnp.finfo(window.dtype).tiny)
 
@@ -363,8 +378,14 @@ def _respond(board: Board, motion, numerics: Numerics, flags) -> Response:
     flags = combine(flags, board.flags(), flag_if(failed, Flag.SOLVER_FAILED), flag_if(nonfinite, Flag.NONFINITE_RESULT))
     bad = flags != 0
     nan = lambda v: jnp.where(bad, jnp.nan, v)  # noqa: E731 - flagged results are NaN, never a wrong number
+    if numerics.stretching:
+        q = S.modal(kappa.t) * (k <= used)
+        membrane_strain = jnp.sum(wavenumbers(board, M) ** 2 * q * q) / 4
+    else:
+        membrane_strain = jnp.zeros_like(kappa.value)
     peak = Peak(
         stress=nan(board.youngs_modulus * half_h * kappa.value),
+        membrane_stress=nan(board.youngs_modulus * membrane_strain),
         strain=nan(half_h * kappa.value),
         x=nan(kappa.x),
         t=nan(kappa.t),
@@ -490,12 +511,15 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     if grid_deflection and numerics.refine and "deflection" in kinds:
         coarse = dataclasses.replace(numerics, refine=False)
         fine_kinds = [k for k in kinds if k != "deflection"]
-        deflection = _search(S, board, coarse, mask[None]).value
-        found = _search(S, board, numerics, (S.curvature * mask)[None]).value if fine_kinds else jnp.zeros((0,))
+        deflection = _search(S, board, coarse, mask[None], _membrane(board, coarse, mask[None], (False,))).value
+        curv = (S.curvature * mask)[None]
+        found = (_search(S, board, numerics, curv, _membrane(board, numerics, curv, (True,))).value
+                 if fine_kinds else jnp.zeros((0,)))
         peaks = jnp.concatenate([deflection, found]) if kinds[0] == "deflection" else jnp.concatenate([found, deflection])
     else:
         rows = jnp.stack([(jnp.ones_like(S.curvature) if k == "deflection" else S.curvature) * mask for k in kinds])
-        peaks = _search(S, board, numerics, rows).value
+        membrane = _membrane(board, numerics, rows, tuple(k == "curvature" for k in kinds))
+        peaks = _search(S, board, numerics, rows, membrane).value
     scale = {"stress": board.youngs_modulus * board.thickness / 2, "strain": board.thickness / 2, "deflection": 1.0}
     values = jnp.stack([scale[q] * peaks[kinds.index("deflection" if q == "deflection" else "curvature")]
                         for q in quantities])
@@ -553,7 +577,8 @@ def response_fields(scene: Scene, numerics: Numerics | None = None, nx: int = 10
     from end A (m; default `nx` points over the board), e.g. strain gauges. With several impacts, `nt` times follow
     each impact (the window after each, as in the peak search).
 
-    Strain and stress are signed: those of the face on the board normal's side (-(h/2) u_xx; positive is tension).
+    Strain and stress are signed: those of the face on the board normal's side (-(h/2) u_xx; positive is tension),
+    plus the membrane strain with `Numerics(stretching=True)`.
     """
     numerics = Numerics() if numerics is None else numerics
     as_int(nx, "nx", 2)
@@ -582,6 +607,9 @@ def _fields(scene, response, numerics, x, nt):
     u = field_on_grid(mask, Q, x, board.length)
     curvature = field_on_grid(-(wavenumbers(board, M) ** 2) * mask, Q, x, board.length)
     strain = -board.thickness / 2 * curvature
+    if numerics.stretching:
+        scale, R = Q
+        strain = strain + ((R * scale * mask) ** 2 @ wavenumbers(board, M) ** 2 / 4)[None, :]
     return Fields(x, t, u, strain, board.youngs_modulus * strain)
 
 

@@ -231,7 +231,9 @@ def test_stretching_reduces_to_linear_at_small_amplitude():
     nl = bd.board_response(
         board, motion, bd.Numerics(n_modes=4, method="diffrax", rtol=1e-10, atol=1e-18, stretching=True)
     )
-    np.testing.assert_allclose(nl.peak.stress, lin.peak.stress, rtol=1e-6)
+    # The bending part is linear to (deflection / thickness)^2 ~ 1e-8; the membrane part, relative, is below deflection / h.
+    np.testing.assert_allclose(nl.peak.stress - nl.peak.membrane_stress, lin.peak.stress, rtol=1e-6)
+    assert 0 < float(nl.peak.membrane_stress / nl.peak.stress) < float(lin.peak.deflection) / 1e-3
 
 
 @pytest.mark.parametrize("ratio", [0.1, 0.3])
@@ -259,6 +261,31 @@ def test_stretching_single_mode_follows_duffing_backbone(ratio):
     backbone = duffing_backbone(w, gamma, A)
     assert omega_nl / w - 1 > 0.02  # clearly hardening
     np.testing.assert_allclose(omega_nl, backbone, rtol=3e-3 * ratio / 0.1)
+
+
+@pytest.mark.parametrize("ratio", [0.1, 1.0])
+def test_stretching_peak_adds_membrane_strain(ratio):
+    # One mode, free vibration of amplitude A: the bending strain peaks at mid-span, (h/2) (pi/L)^2 A, when the
+    # membrane strain (1/4) (pi/L)^2 A^2 peaks too, so the face in tension sees their sum (closed form).
+    board = bd.Board()
+    E, h, L = 22e9, 1e-3, 0.1
+    w = float(bd.natural_frequencies(board, 1)[0])
+    gamma = E * (math.pi / L) ** 4 / (4 * 1900.0)
+    A = math.sqrt(ratio * w * w / gamma)
+    v0 = math.sqrt(w * w * A * A + 0.5 * gamma * A**4)
+    motion = bd.Impulse(-v0 * math.pi / 4, -v0 * math.pi / 4)
+    numerics = bd.Numerics(n_modes=1, method="diffrax", solver="Dopri8", rtol=1e-11, atol=1e-16, stretching=True)
+    res = bd.board_response(board, motion, numerics)
+    kappa2 = (math.pi / L) ** 2
+    bending, membrane = h / 2 * kappa2 * A, kappa2 * A * A / 4
+    np.testing.assert_allclose(res.peak.strain, bending + membrane, rtol=1e-6)
+    np.testing.assert_allclose(res.peak.stress, E * (bending + membrane), rtol=1e-6)
+    np.testing.assert_allclose(res.peak.membrane_stress, E * membrane, rtol=1e-5)
+    np.testing.assert_allclose(res.peak.x, L / 2, rtol=1e-6)
+    assert "peak_membrane_stress_MPa" in res.summary()
+    # Without stretching the membrane part is zero.
+    linear = bd.board_response(board, motion, bd.Numerics(n_modes=1))
+    assert float(linear.peak.membrane_stress) == 0.0
 
 
 def test_float32_close_to_float64():
