@@ -64,38 +64,48 @@ def dimensionless(scene, peak=bd.peak_stress):
     return _f(z, scene, scales, peak), _grad_f(z, scene, scales, peak), fd
 
 
-_impact = jax.jit(bd.housing_impact)
+@jax.jit
+def _impacts(batch):
+    axes = jax.tree_util.tree_map(lambda v: 0 if jnp.ndim(v) and jnp.shape(v)[0] == 2048 else None, batch)
+    return jax.vmap(bd.housing_impact, in_axes=(axes,))(batch)
+
+
+def _random_scene(rng, size):
+    """`size` random drops as one batched scene (every field an array of shape (size,))."""
+    u = lambda lo, hi: rng.uniform(lo, hi, size)  # noqa: E731
+    return bd.Scene(
+        board=bd.Board(length=u(0.06, 0.09), damping_ratio=u(0, 0.05), axial_force=u(-20, 20)),
+        placement=bd.Placement(centre=np.stack([u(-0.02, 0.02), u(-0.01, 0.01)], -1), angle=u(-0.1, 0.1)),
+        drop=bd.Drop(orientation=u(0.1, 2 * math.pi - 0.1), height=u(0.5, 2.0), spin=u(-30, 30),
+                     horizontal_speed=u(-2, 2)),
+        contact=bd.Contact(friction=u(0.0, 1.2), restitution=u(0.1, 0.9), duration=u(2e-4, 1e-3)),
+    )
 
 
 def generic_scenes(n_per_mode=10, seed=7):
-    """Random valid scenes, at least n_per_mode in each Routh mode, over several striking corners."""
+    """Random valid scenes, at least n_per_mode in each Routh mode, over several striking corners (candidates
+    drawn and classified in batches, one compiled impact for all)."""
     rng = np.random.default_rng(seed)
     found, corners, scenes = Counter(), Counter(), []
     while min(found[m] for m in bd.ImpactMode) < n_per_mode:
-        th = rng.uniform(0.1, 2 * math.pi - 0.1)
-        if abs(math.sin(2 * th)) < 0.2:
-            continue
-        scene = bd.Scene(
-            board=bd.Board(length=rng.uniform(0.06, 0.09), damping_ratio=rng.uniform(0, 0.05),
-                           axial_force=rng.uniform(-20, 20)),
-            placement=bd.Placement(centre=(rng.uniform(-0.02, 0.02), rng.uniform(-0.01, 0.01)),
-                                   angle=rng.uniform(-0.1, 0.1)),
-            drop=bd.Drop(orientation=th, height=rng.uniform(0.5, 2.0), spin=rng.uniform(-30, 30),
-                         horizontal_speed=rng.uniform(-2, 2)),
-            contact=bd.Contact(friction=rng.uniform(0.0, 1.2), restitution=rng.uniform(0.1, 0.9),
-                               duration=rng.uniform(2e-4, 1e-3)),
-        )
-        hit = _impact(scene)
-        mode = bd.ImpactMode(int(hit.impact.mode))
-        # Generic: away from the mode boundaries (stick point not within 2 % of the ends or compression).
-        pn_s, pn_c, pn_f = (float(v) for v in (hit.impact.Pn_stick, hit.impact.Pn_compression, hit.impact.P[1]))
-        if mode != bd.ImpactMode.SLIDING and min(abs(pn_s - pn_c), abs(pn_s - pn_f), pn_s) < 0.02 * pn_f:
-            continue
-        if found[mode] >= n_per_mode:
-            continue
-        found[mode] += 1
-        corners[tuple(np.sign(np.asarray(hit.corner)))] += 1
-        scenes.append(scene)
+        batch = _random_scene(rng, 2048)
+        hit = jax.device_get(_impacts(batch))
+        for i in range(2048):
+            th = float(batch.drop.orientation[i])
+            if abs(math.sin(2 * th)) < 0.2:
+                continue
+            mode = bd.ImpactMode(int(hit.impact.mode[i]))
+            # Generic: away from the mode boundaries (stick point not within 2 % of the ends or compression).
+            pn_s, pn_c, pn_f = (float(v[i]) for v in (hit.impact.Pn_stick, hit.impact.Pn_compression,
+                                                        hit.impact.P[:, 1]))
+            if mode != bd.ImpactMode.SLIDING and min(abs(pn_s - pn_c), abs(pn_s - pn_f), pn_s) < 0.02 * pn_f:
+                continue
+            if found[mode] >= n_per_mode:
+                continue
+            found[mode] += 1
+            corners[tuple(np.sign(np.asarray(hit.corner[i])))] += 1
+            scenes.append(jax.tree_util.tree_map(lambda v: v[i] if jnp.ndim(v) and jnp.shape(v)[0] == 2048 else v,
+                                                 batch))
     return scenes, corners
 
 

@@ -1,0 +1,177 @@
+"""An independent finite-element peer for the board: OpenSees (`openseespy`, the optional extra `validation`).
+
+The board is meshed with Euler-Bernoulli beam elements (`elasticBeamColumn`, consistent mass) and its two supports
+are driven with the prescribed displacement, velocity and acceleration of the support motion (a `MultipleSupport`
+pattern of imposed motions), integrated by Newmark's average-acceleration method. Nothing in it shares code with the
+modal model: it is a second method for the same physics, to compare frequencies and peak stress, where and when.
+"""
+
+import importlib.util
+import math
+import os
+from typing import NamedTuple
+
+import numpy as np
+
+from ._motion import HalfSine
+from ._scene import Board
+
+
+def _opensees():
+    """openseespy's module; its Linux wheel ships a BLAS its LAPACK cannot find, so load that first."""
+    spec = importlib.util.find_spec("openseespylinux")
+    if spec is not None and spec.origin is not None:
+        import ctypes
+
+        blas = os.path.join(os.path.dirname(spec.origin), "lib", "libblas.so.3")
+        if os.path.exists(blas):
+            ctypes.CDLL(blas, mode=ctypes.RTLD_GLOBAL)
+    try:
+        import openseespy.opensees as ops
+    except (ImportError, RuntimeError) as err:
+        raise ImportError('the OpenSees peer needs openseespy: pip install "beamdrop_jax[validation]"') from err
+    return ops
+
+
+class FEResponse(NamedTuple):
+    """The OpenSees peer's answer for a board of `length` (m): `frequencies` (Hz, lowest first), peak bending
+    `stress` (Pa) over the nodes and the time steps, where (`x` from end A, m) and when (`t`, s), both refined by
+    parabolas through the neighbouring nodes and steps, the discretisation (`n_elements`, `dt`, s) and the whole `history`: |stress| (Pa) at the
+    nodes x_i = i L / n_elements (columns) after each step t_j = (j + 1) dt (rows)."""
+
+    length: float
+    frequencies: np.ndarray
+    stress: float
+    x: float
+    t: float
+    n_elements: int
+    dt: float
+    history: np.ndarray
+
+    def stress_at(self, x: float, t: float) -> float:
+        """|stress| (Pa) at (x, t), bilinear between nodes and steps."""
+        steps, nodes = self.history.shape
+        fx = np.clip(x / self.length * (nodes - 1), 0, nodes - 1 - 1e-12)
+        ft = np.clip(t / self.dt - 1, 0, steps - 1 - 1e-12)
+        i, j = int(fx), int(ft)
+        a, b = fx - i, ft - j
+        h = self.history
+        return float((1 - b) * ((1 - a) * h[j, i] + a * h[j, i + 1]) + b * ((1 - a) * h[j + 1, i] + a * h[j + 1, i + 1]))
+
+
+def _support_history(dv: float, tau: float, t: np.ndarray):
+    """Displacement, velocity and acceleration of a support whose velocity changes by `dv` as a half-sine of
+    duration `tau` (the integrals of a(t) = dv pi/(2 tau) sin(pi t / tau) on [0, tau]) from rest at t = 0."""
+    w = math.pi / tau
+    on = t <= tau
+    tt = np.minimum(t, tau)
+    accel = np.where(on, dv * w / 2 * np.sin(w * tt), 0.0)
+    vel = dv * (1 - np.cos(w * tt)) / 2
+    disp = dv * (tt - np.sin(w * tt) / w) / 2 + np.where(on, 0.0, dv * (t - tau))
+    return disp, vel, accel
+
+
+def _build(ops, board: Board, n: int, stretching: bool = False):
+    L, b, h = float(board.length), float(board.width), float(board.thickness)
+    E, rho = float(board.youngs_modulus), float(board.density)
+    ops.wipe()
+    ops.model("basic", "-ndm", 2, "-ndf", 3)
+    for i in range(n + 1):
+        ops.node(i + 1, L * i / n, 0.0)
+    ops.geomTransf("Corotational" if stretching else "Linear", 1)
+    for i in range(n):
+        ops.element("elasticBeamColumn", i + 1, i + 1, i + 2, b * h, E, b * h**3 / 12, 1, "-mass", rho * b * h,
+                    "-cMass")
+    ops.fix(1, 1, 0, 0)  # the board's axis: no axial rigid motion
+    if stretching:
+        ops.fix(n + 1, 1, 0, 0)  # axially immovable supports
+
+
+def opensees_board_response(
+    board: Board,
+    motion: HalfSine,
+    window: float,
+    *,
+    n_elements: int = 80,
+    dt: float = 1e-6,
+    n_frequencies: int = 4,
+    stretching: bool = False,
+) -> FEResponse:
+    """Peak bending stress of a pinned-pinned board whose supports move as `motion` (a `HalfSine` with
+    duration > 0), computed by OpenSees over [0, `window`] s with `n_elements` beam elements and time step `dt`.
+
+    `stretching=True`: axially immovable supports and corotational (large-displacement) elements solved by Newton's
+    method; the stress is then that of the face in tension, N/A + |M| (h/2)/I, to compare with
+    `Numerics(stretching=True)`.
+
+    The peer models an undamped board without axial force (the cases it is there to check)."""
+    if not isinstance(motion, HalfSine) or float(motion.duration) <= 0:
+        raise ValueError("the OpenSees peer takes a HalfSine support motion with duration > 0")
+    if float(board.axial_force) != 0.0 or float(board.damping_ratio) != 0.0:
+        raise ValueError("the OpenSees peer models a board with axial_force = 0 and damping_ratio = 0")
+    if n_elements < 2 or dt <= 0 or window <= 0:
+        raise ValueError("n_elements >= 2, dt > 0 and window > 0 are needed")
+    ops = _opensees()
+    n = int(n_elements)
+
+    _build(ops, board, n)
+    ops.fix(1, 0, 1, 0)
+    ops.fix(n + 1, 0, 1, 0)
+    omega2 = np.asarray(ops.eigen(n_frequencies))
+    frequencies = np.sqrt(omega2) / (2 * math.pi)
+
+    _build(ops, board, n, stretching)
+    steps = int(math.ceil(window / dt))
+    # A Path series reads 0 past its last value, and round-off in the analysis time can step past it: pad.
+    t = np.arange(steps + 11) * dt
+    tau = float(motion.duration)
+    ops.pattern("MultipleSupport", 1)
+    for k, (node, dv) in enumerate(((1, float(motion.dvA)), (n + 1, float(motion.dvB)))):
+        series = []
+        for j, history in enumerate(_support_history(dv, tau, t)):
+            tag = 10 * (k + 1) + j
+            ops.timeSeries("Path", tag, "-dt", dt, "-values", *history.tolist())
+            series.append(tag)
+        ops.groundMotion(k + 1, "Plain", "-disp", series[0], "-vel", series[1], "-accel", series[2])
+        ops.imposedMotion(node, 2, k + 1)
+    ops.constraints("Transformation")
+    ops.numberer("RCM")
+    ops.system("BandGeneral")
+    ops.test("NormDispIncr", 1e-12, 10)
+    ops.algorithm("Newton" if stretching else "Linear")
+    ops.integrator("Newmark", 0.5, 0.25)
+    ops.analysis("Transient")
+
+    area, inertia = float(board.width) * float(board.thickness), float(board.width) * float(board.thickness) ** 3 / 12
+    c = float(board.thickness) / 2 / inertia
+    # |stress| on the nodes, in units of c (a moment): |M| plus, with stretching, the membrane part N / (A c).
+    moments = np.zeros((steps, n + 1))
+    for step in range(steps):
+        if ops.analyze(1, dt) != 0:
+            raise RuntimeError(f"OpenSees failed at step {step + 1}")
+        for e in range(n):
+            axial, m_i, m_j = ops.eleResponse(e + 1, "basicForce")[:3]
+            membrane = axial / (area * c) if stretching else 0.0
+            moments[step, e] = abs(m_i) + membrane
+        moments[step, n] = abs(m_j) + membrane
+    # The largest over nodes and steps. An undamped board repeats its peak and mirror images tie; the mesh's
+    # error differs between those instants, so this need not be the instant the package reports (its earliest).
+    step = int(np.argmax(moments.max(axis=1)))
+    i = int(np.argmax(moments[step]))
+    peak, x, t_peak = moments[step, i], i * float(board.length) / n, (step + 1) * dt
+    # Parabolas through the neighbouring nodes and steps place the peak between them.
+    for axis, cell in ((0, float(board.length) / n), (1, dt)):
+        j, m = (i, n + 1) if axis == 0 else (step, steps)
+        if 0 < j < m - 1:
+            lo, mid, hi = (moments[step, j - 1], moments[step, j], moments[step, j + 1]) if axis == 0 else (
+                moments[j - 1, i], moments[j, i], moments[j + 1, i])
+            curv = lo - 2 * mid + hi
+            if curv < 0:
+                offset = 0.5 * (lo - hi) / curv
+                peak += -0.25 * (lo - hi) * offset
+                if axis == 0:
+                    x += offset * cell
+                else:
+                    t_peak += offset * cell
+    ops.wipe()
+    return FEResponse(float(board.length), frequencies, c * peak, x, t_peak, n, dt, c * moments)
