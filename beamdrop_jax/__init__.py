@@ -33,7 +33,8 @@ from ._clatter import (
 )
 from ._motion import HalfSine as HalfSine, Impulse as Impulse, PulseTrain as PulseTrain, Record as Record
 from ._motion import JESD22_B111_CONDITION_B as JESD22_B111_CONDITION_B
-from ._board import natural_frequencies as natural_frequencies, unit_response as unit_response
+from ._beam import ENDS as ENDS, natural_frequencies as natural_frequencies
+from ._board import unit_response as unit_response
 from ._peaks import FieldPeak as FieldPeak
 from ._simulate import (
     Fields as Fields,

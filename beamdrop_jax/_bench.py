@@ -359,7 +359,7 @@ def stability_study(level: str = "quick", progress=True) -> dict:
     - `modes`: peak stress against mode count for the ideal impulse and half-sines of several durations;
     - `buckling`: first frequency and peak stress as the axial compression approaches the Euler load.
     """
-    from ._board import natural_frequencies
+    from ._beam import natural_frequencies
     from ._integrate import solve_modes
     from ._motion import HalfSine
     from ._scene import Board

@@ -1,54 +1,15 @@
-"""Modal model of the pinned-pinned board and its closed-form response to support motion.
-
-Relative deflection u(x, t) from the chord AB (x from A) obeys
-rho A u_tt + EI u_xxxx - N u_xx = -rho A [a_A(t) (1 - x/L) + a_B(t) x/L] (+ modal damping).
-With u = sum q_k(t) sin(k pi x / L):
-q_k'' + 2 zeta omega_k q_k' + omega_k^2 q_k = -(2 / (k pi)) [a_A(t) - (-1)^k a_B(t)],
-omega_k^2 = (EI (k pi/L)^4 + N (k pi/L)^2) / (rho A).
-Rotation-induced loads on the board (centrifugal, Euler) are neglected.
-"""
+"""Closed-form modal response to support motion: q_k'' + 2 zeta omega_k q_k' + omega_k^2 q_k = p_k . a(t) for an
+ideal impulse or a half-sine pulse, whatever the board model that supplies omega_k and p_k (`_beam`)."""
 
 import math
 
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ._beam import natural_frequencies
 from ._checks import float_dtype
 from ._scene import Board
 from ._trig import cexp, sincos
-
-
-def mode_numbers(n_modes: int) -> Float[Array, " n"]:
-    return jnp.arange(1, n_modes + 1, dtype=float_dtype())
-
-
-def wavenumbers(board: Board, n_modes: int) -> Float[Array, " n"]:
-    """k pi / L for k = 1..n, 1/m."""
-    return mode_numbers(n_modes) * math.pi / board.length
-
-
-def natural_frequencies(board: Board, n_modes: int) -> Float[Array, " n"]:
-    """Undamped natural frequencies omega_k (rad/s), k = 1..n, including the axial force.
-
-    A buckled board (axial force at or past -EI pi^2/L^2) has no real frequency; it is flagged by
-    `Board.flags()` and the frequencies are clamped to a tiny positive value so nothing downstream is NaN.
-    """
-    kappa = wavenumbers(board, n_modes)
-    omega2 = (board.bending_stiffness * kappa**4 + board.axial_force * kappa**2) / board.mass_per_length
-    tiny = jnp.finfo(omega2.dtype).tiny ** 0.25
-    return jnp.sqrt(jnp.maximum(omega2, tiny))
-
-
-def support_participation(n_modes: int) -> Float[Array, "n 2"]:
-    """Modal forcing per unit support acceleration: F_k = p_kA a_A + p_kB a_B with p_kA = -2/(k pi),
-    p_kB = 2 (-1)^k / (k pi)."""
-    k = mode_numbers(n_modes)
-    return jnp.stack([-2.0 / (k * math.pi), 2.0 * (-1.0) ** k / (k * math.pi)], axis=-1)
-
-
-def modal_velocity_jumps(jumps: Float[Array, "2"], n_modes: int) -> Float[Array, " n"]:
-    """beta_k = -(2/(k pi)) [dvA - (-1)^k dvB]: the modal velocities an ideal impulse leaves, m/s."""
-    return support_participation(n_modes) @ jnp.asarray(jumps)
 
 
 _SERIES_RADIUS = 0.1

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._board import modal_velocity_jumps, natural_frequencies, support_participation, wavenumbers
+from ._beam import modal_velocity_jumps, natural_frequencies, support_participation, wavenumbers
 from ._motion import HalfSine, Record
 from ._scene import Board
 
@@ -64,7 +64,9 @@ def solve_modes(
     """
     omega = natural_frequencies(board, n_modes)
     zeta = board.damping_ratio
-    part = support_participation(n_modes) * force_mask[:, None]
+    if stretching and board.ends != "pinned":
+        raise ValueError(f'Numerics.stretching = True models pinned ends only (Board.ends = "{board.ends}")')
+    part = support_participation(board, n_modes) * force_mask[:, None]
     kappa = wavenumbers(board, n_modes)
     membrane = board.youngs_modulus * board.width * board.thickness / 4.0
 
@@ -76,7 +78,7 @@ def solve_modes(
     else:
         pulse: HalfSine = motion.as_half_sine()
         is_pulse = pulse.duration > 0
-        v0 = jnp.where(is_pulse, 0.0, modal_velocity_jumps(jnp.stack([pulse.dvA, pulse.dvB]), n_modes)) * force_mask
+        v0 = jnp.where(is_pulse, 0.0, modal_velocity_jumps(board, jnp.stack([pulse.dvA, pulse.dvB]), n_modes)) * force_mask
         accel = pulse.acceleration
         # The pulse's end is a kink in the forcing: step onto it exactly (DESIGN: declare it as a jump time).
         jumps = jnp.where(is_pulse, pulse.duration, window)[None]

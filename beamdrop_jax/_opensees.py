@@ -97,8 +97,9 @@ def opensees_board_response(
     n_frequencies: int = 4,
     stretching: bool = False,
 ) -> FEResponse:
-    """Peak bending stress of a pinned-pinned board whose supports move as `motion` (a `HalfSine` with
+    """Peak bending stress of a board (any `Board.ends`) whose supports move as `motion` (a `HalfSine` with
     duration > 0), computed by OpenSees over [0, `window`] s with `n_elements` beam elements and time step `dt`.
+    A clamp turns with the chord AB (the housing's rotation); a free end follows nothing.
 
     `stretching=True`: axially immovable supports and corotational (large-displacement) elements solved by Newton's
     method; the stress is then that of the face in tension, N/A + |M| (h/2)/I, to compare with
@@ -107,6 +108,8 @@ def opensees_board_response(
     The peer models an undamped board without axial force (the cases it is there to check)."""
     if not isinstance(motion, HalfSine) or float(motion.duration) <= 0:
         raise ValueError("the OpenSees peer takes a HalfSine support motion with duration > 0")
+    if stretching and board.ends != "pinned":
+        raise ValueError("the OpenSees peer's stretching case has pinned ends")
     if float(board.axial_force) != 0.0 or float(board.damping_ratio) != 0.0:
         raise ValueError("the OpenSees peer models a board with axial_force = 0 and damping_ratio = 0")
     if n_elements < 2 or dt <= 0 or window <= 0:
@@ -114,9 +117,12 @@ def opensees_board_response(
     ops = _opensees()
     n = int(n_elements)
 
+    end_a, end_b = {"pinned": ("P", "P"), "clamped": ("C", "C"), "clamped-pinned": ("C", "P"),
+                    "pinned-clamped": ("P", "C"), "clamped-free": ("C", "F")}[board.ends]
     _build(ops, board, n)
-    ops.fix(1, 0, 1, 0)
-    ops.fix(n + 1, 0, 1, 0)
+    for node, end in ((1, end_a), (n + 1, end_b)):
+        if end != "F":
+            ops.fix(node, 0, 1, int(end == "C"))
     omega2 = np.asarray(ops.eigen(n_frequencies))
     frequencies = np.sqrt(omega2) / (2 * math.pi)
 
@@ -126,14 +132,21 @@ def opensees_board_response(
     t = np.arange(steps + 11) * dt
     tau = float(motion.duration)
     ops.pattern("MultipleSupport", 1)
-    for k, (node, dv) in enumerate(((1, float(motion.dvA)), (n + 1, float(motion.dvB)))):
+    dvA, dvB = float(motion.dvA), float(motion.dvB)
+    # Ground motions: 1, 2 the supports' translations; 3 the chord's rotation (dB - dA) / L, which clamps follow.
+    motions = (dvA, dvB, (dvB - dvA) / float(board.length))
+    for k, dv in enumerate(motions):
         series = []
         for j, history in enumerate(_support_history(dv, tau, t)):
             tag = 10 * (k + 1) + j
             ops.timeSeries("Path", tag, "-dt", dt, "-values", *history.tolist())
             series.append(tag)
         ops.groundMotion(k + 1, "Plain", "-disp", series[0], "-vel", series[1], "-accel", series[2])
-        ops.imposedMotion(node, 2, k + 1)
+    for k, (node, end) in enumerate(((1, end_a), (n + 1, end_b))):
+        if end != "F":
+            ops.imposedMotion(node, 2, k + 1)
+        if end == "C":
+            ops.imposedMotion(node, 3, 3)
     ops.constraints("Transformation")
     ops.numberer("RCM")
     ops.system("BandGeneral")

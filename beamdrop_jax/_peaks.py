@@ -1,4 +1,5 @@
-"""Peak of |sum_k c_k q_k(t) sin(k pi x / L)| + sum_k m_k q_k(t)^2 over x in [0, L] and t in [0, window].
+"""Peak of |sum_k c_k q_k(t) phi_k(x)| + sum_k m_k q_k(t)^2 over x in [0, L] and t in [0, window], phi_k the
+board's deflection or curvature mode shapes (`_beam.mode_shapes`).
 
 The second term (optional, uniform along the board) is the membrane strain of mid-plane stretching, which adds to
 the bending strain on the face in tension.
@@ -7,19 +8,18 @@ A coarse grid finds candidate peaks (the largest local maxima in time of the spa
 from the vertex of the parabolas through its grid neighbours by Newton's method on the modal series, steps scaled
 into a trust radius of one grid cell that halves when a step does not gain; the largest wins, never below its grid
 value. Of candidates that tie to 1e-9 the earliest is reported. The peak's gradient is the gradient at the
-maximiser (envelope theorem), so the maximiser enters under `stop_gradient`, except at the window's end, where the
-window's own dependence on the parameters counts.
+maximiser (envelope theorem), so the maximiser enters under `stop_gradient`, except at the window's end and at end
+B of the board, whose own dependence on the parameters counts; on an end (a clamp's peak) the search runs in t
+alone, so the peak is stationary in t there.
 """
 
-import math
 from collections.abc import Callable
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
-from ._checks import float_dtype
-from ._trig import sincos
+from ._beam import mode_shapes
 
 
 class FieldPeak(eqx.Module):
@@ -37,19 +37,14 @@ def stop_gradient(tree):
     return jax.tree_util.tree_map(lambda v: jax.lax.stop_gradient(v) if eqx.is_inexact_array(v) else v, tree)
 
 
-def mode_shapes(x, length, n_modes: int) -> Float[Array, "... n"]:
-    k = jnp.arange(1, n_modes + 1, dtype=float_dtype())
-    return sincos(jnp.asarray(x)[..., None] * k * math.pi / length)[0]
-
-
-def field_on_grid(coeffs, Q, x, length) -> Float[Array, "nx nt"]:
-    """Field sum_k coeffs_k q_k(t) sin(k pi x / L) on the grid x (nx,) by t (nt,), with the modal coordinates
-    given as factors Q = (scale (n,), R (nt, n)), q_k(t_j) = scale_k R[j, k].
+def field_on_grid(coeffs, Q, shapes) -> Float[Array, "nx nt"]:
+    """Field sum_k coeffs_k q_k(t) phi_k(x) on a grid, with the mode shapes `shapes` (nx, n) on the grid's x and
+    the modal coordinates given as factors Q = (scale (n,), R (nt, n)), q_k(t_j) = scale_k R[j, k].
 
     Keeping the factors apart matters under `vmap`: when only `scale` varies between drops (the board and pulse
     are shared), R is computed once and the drops fold into one large matrix product."""
     scale, R = Q
-    return (mode_shapes(x, length, R.shape[-1]) * (coeffs * scale)) @ R.T
+    return (shapes * (coeffs * scale)) @ R.T
 
 
 def _largest(values: Float[Array, " n"], k: int):
@@ -70,18 +65,21 @@ def find_peak(
     Q: tuple,
     x: Float[Array, " nx"],
     t: Float[Array, " nt"],
-    length,
+    board,
     window,
     *,
+    curvature=False,
     candidates: int = 4,
     newton_steps: int = 6,
     refine: bool = True,
     membrane: Float[Array, " n"] | None = None,
 ) -> FieldPeak:
     """Peak of |field| (+ sum_k membrane_k q_k^2 when `membrane` is given) with `modal(t) -> q (n,)` the modal
-    coordinates (a pytree callable with `jet(t) -> (q, q', q'')`, e.g. an `eqx.Module`) and
-    `Q = modal.grid_factors(t)` on the grid (see `field_on_grid`)."""
-    F = field_on_grid(coeffs, Q, x, length)
+    coordinates (a pytree callable with `jet(t) -> (q, q', q'')`, e.g. an `eqx.Module`),
+    `Q = modal.grid_factors(t)` on the grid (see `field_on_grid`), and the board's deflection shapes or, with
+    `curvature` (a bool or a traced 0/1), its curvature shapes (`_beam.mode_shapes`)."""
+    n = coeffs.shape[-1]
+    F = field_on_grid(coeffs, Q, mode_shapes(board, x, n, curvature))
     A = jnp.abs(F)
     if membrane is not None:
         scale, R = Q
@@ -114,22 +112,23 @@ def find_peak(
     ix_lo, ix_hi = jnp.maximum(where_x - 1, 0), jnp.minimum(where_x + 1, nx - 1)
     it_lo, it_hi = jnp.maximum(idx - 1, 0), jnp.minimum(idx + 1, nt - 1)
     mid = A[where_x, idx]
-    x0 = x[where_x] + cell_x * vertex(A[ix_lo, idx], mid, A[ix_hi, idx])
-    t0 = t[idx] + cell_t * vertex(A[where_x, it_lo], mid, A[where_x, it_hi])
+    # (Clipped: a peak at a clamped end has its vertex outside the board.)
+    x0 = jnp.clip(x[where_x] + cell_x * vertex(A[ix_lo, idx], mid, A[ix_hi, idx]), x[0], x[-1])
+    t0 = jnp.clip(t[idx] + cell_t * vertex(A[where_x, it_lo], mid, A[where_x, it_hi]), t[0], t[-1])
 
     # The search itself is not differentiated: only the final evaluation at the maximiser is.
-    coeffs_c, length_c, window_c, modal_c, membrane_c = stop_gradient((coeffs, length, window, modal, membrane))
-    k = jnp.arange(1, coeffs.shape[-1] + 1, dtype=float_dtype()) * math.pi / length_c
+    coeffs_c, board_c, window_c, modal_c, membrane_c = stop_gradient((coeffs, board, window, modal, membrane))
+    length_c = board_c.length
 
     def value_grad_hess(x, t, sign):
         # Field derivatives in closed form in x; q, q', q'' from the modal solution's own jet in t. Scalars, not
         # stacked arrays: tiny stacks and transposes inside the loop cost more than the arithmetic under vmap.
         q, dq, ddq = modal_c.jet(t)
-        sn, cs = sincos(k * x)
+        sn, dsn, ddsn = (mode_shapes(board_c, x, n, curvature, order) for order in range(3))
         a, b = sign * coeffs_c * q, sign * coeffs_c * dq
         f = jnp.sum(a * sn)
-        g = (jnp.sum(a * k * cs), jnp.sum(b * sn))
-        H = (-jnp.sum(a * k * k * sn), jnp.sum(b * k * cs), jnp.sum(sign * coeffs_c * ddq * sn))
+        g = (jnp.sum(a * dsn), jnp.sum(b * sn))
+        H = (jnp.sum(a * ddsn), jnp.sum(b * dsn), jnp.sum(sign * coeffs_c * ddq * sn))
         if membrane is not None:
             f = f + jnp.sum(membrane_c * q * q)
             g = (g[0], g[1] + 2 * jnp.sum(membrane_c * q * dq))
@@ -147,6 +146,12 @@ def find_peak(
             # which halves after a step that does not gain.
             ux = jnp.where(concave, -(htt * gx - hxt * gt) / det_safe / cell_x, 0.5 * jnp.sign(gx))
             ut = jnp.where(concave, -(hxx * gt - hxt * gx) / det_safe / cell_t, 0.5 * jnp.sign(gt))
+            # On an end of the board with the field rising outwards (a clamp's peak) the maximum is constrained
+            # there: search in t alone, so that the peak is stationary in t (its gradient then holds).
+            edge = ((x <= 0.0) & (gx < 0)) | ((x >= length_c) & (gx > 0))
+            falls = htt < 0
+            ut_edge = jnp.where(falls, -gt / jnp.where(falls, htt, 1.0) / cell_t, 0.5 * jnp.sign(gt))
+            ux, ut = jnp.where(edge, 0.0, ux), jnp.where(edge, ut_edge, ut)
             shrink = jnp.minimum(1.0, radius / jnp.maximum(jnp.maximum(jnp.abs(ux), jnp.abs(ut)), 1e-30))
             x_new = jnp.clip(x + shrink * ux * cell_x, 0.0, length_c)
             t_new = jnp.clip(t + shrink * ut * cell_t, 0.0, window_c)
@@ -176,12 +181,13 @@ def find_peak(
     tied = f_all >= jnp.max(f_all) * (1.0 - 1e-9)
     best = jnp.argmin(jnp.where(tied, p_all[:, 1], jnp.inf))
     p_best = jax.lax.stop_gradient(p_all[best])
-    x_star = p_best[0]
+    # A peak on end B (a clamp) moves with the board's length: keep that dependence too.
+    x_star = jnp.where(p_best[0] >= length_c * (1.0 - 1e-9), board.length, p_best[0])
     # A peak at the window's end moves with the window (which depends on the board): keep that dependence.
     at_end = p_best[1] >= window * (1.0 - 1e-9)
     t_star = jnp.where(at_end, window, p_best[1])
     q = modal(t_star)
-    value = jnp.abs(jnp.sum(coeffs * q * mode_shapes(x_star, length, q.shape[-1])))
+    value = jnp.abs(jnp.sum(coeffs * q * mode_shapes(board, x_star, n, curvature)))
     if membrane is not None:
         value = value + jnp.sum(membrane * q * q)
     err = jax.lax.stop_gradient(gain_all[best] / jnp.maximum(f_all[best], jnp.finfo(A.dtype).tiny))

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._beam import ENDS, EULER_LOAD
 from ._checks import DEG, Flag, Range, as_float, combine, flag_if, is_concrete, raise_if_flagged, require
 
 # Angles beyond this many radians (about 1600 turns) are rejected: no drop needs them, and the sine and cosine of
@@ -89,10 +90,13 @@ class Housing(eqx.Module):
 
 
 class Board(eqx.Module):
-    """Pinned-pinned Euler-Bernoulli board (SI units).
+    """Euler-Bernoulli board (SI units), its `ends` (at A, at B) one of `"pinned"` (default), `"clamped"`,
+    `"clamped-pinned"`, `"pinned-clamped"`, `"clamped-free"`; clamps rotate with the housing.
 
-    `axial_force` N is positive in tension; N <= -EI pi^2 / L^2 buckles and is rejected.
-    `damping_ratio` is the modal damping ratio zeta, the same for every mode, in [0, 1).
+    `axial_force` N is positive in tension; compression at or past the Euler load of the ends (pinned:
+    EI pi^2 / L^2) buckles and is rejected; with ends other than pinned its effect on the frequencies is the
+    Galerkin estimate on the unloaded modes. `damping_ratio` is the modal damping ratio zeta, the same for every
+    mode, in [0, 1).
     """
 
     length: Float[Array, ""]
@@ -102,6 +106,7 @@ class Board(eqx.Module):
     density: Float[Array, ""]
     axial_force: Float[Array, ""]
     damping_ratio: Float[Array, ""]
+    ends: str = eqx.field(static=True)
 
     RANGES: ClassVar[dict] = {
         "length": _positive("m"),
@@ -123,7 +128,15 @@ class Board(eqx.Module):
         density=1900.0,
         axial_force=0.0,
         damping_ratio=0.0,
+        ends="pinned",
     ):
+        if ends not in ENDS:
+            import difflib
+
+            near = difflib.get_close_matches(str(ends), ENDS, n=1)
+            hint = f" (did you mean {near[0]!r}?)" if near else ""
+            raise ValueError(f"Board.ends = {ends!r}{hint}; valid: {', '.join(ENDS)}")
+        self.ends = ends
         _init_fields(self, dict(length=length, thickness=thickness, width=width, youngs_modulus=youngs_modulus,
                                 density=density, axial_force=axial_force, damping_ratio=damping_ratio))
 
@@ -145,8 +158,8 @@ class Board(eqx.Module):
 
     @property
     def buckling_force(self) -> Float[Array, ""]:
-        """Euler load EI pi^2 / L^2 (N): compression of this size buckles the board."""
-        return self.bending_stiffness * jnp.pi**2 / self.length**2
+        """Euler load of the board's ends (N; pinned: EI pi^2 / L^2): compression of this size buckles it."""
+        return self.bending_stiffness * EULER_LOAD[self.ends] / self.length**2
 
     def flags(self):
         """Traceable checks of this board (int32 mask of `Flag`)."""

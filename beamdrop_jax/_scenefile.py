@@ -20,6 +20,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from ._beam import ENDS
 from ._checks import DEG, Range, as_float
 from ._scene import MAX_ANGLE, SECTIONS, Scene
 
@@ -30,7 +31,10 @@ OPTIONAL_KEYS = {
     ("board", "damping_ratio"),
     ("drop", "spin"),
     ("drop", "horizontal_speed"),
+    ("board", "ends"),
 }
+# Keys whose value is a name from a list (the others are numbers).
+CHOICE_KEYS = {("board", "ends"): ENDS}
 _DEG_RANGE = Range(-MAX_ANGLE / DEG, MAX_ANGLE / DEG, unit="deg")
 
 
@@ -53,7 +57,8 @@ def _scene_path(path) -> Path:
 
 def file_keys(section: str) -> list[str]:
     """The keys a scene file's `[section]` takes (angles under `_deg`)."""
-    return [f"{name}_deg" if (section, name) in ANGLE_KEYS else name for name in SECTIONS[section].RANGES]
+    return [f"{name}_deg" if (section, name) in ANGLE_KEYS else name for name in SECTIONS[section].RANGES] + [
+        name for (s, name) in CHOICE_KEYS if s == section]
 
 
 def _read_toml(path: Path, source: str) -> dict:
@@ -87,6 +92,13 @@ def _section(section: str, table, source: str):
                              f"'{key}_deg' (a bare '{key}' would be read as radians)")
         if key not in keys:
             raise ValueError(f"{where}: unknown key {key!r}; {_suggest(key, keys)}valid keys: {', '.join(keys)}")
+        if (section, key) in CHOICE_KEYS:
+            choices = CHOICE_KEYS[(section, key)]
+            if value not in choices:
+                raise ValueError(f"{where} {key} = {value!r}; {_suggest(str(value), choices)}valid: "
+                                 + ", ".join(f'"{c}"' for c in choices))
+            kwargs[key] = value
+            continue
         name = key.removesuffix("_deg") if (section, key.removesuffix("_deg")) in ANGLE_KEYS else key
         valid = _DEG_RANGE if name != key else cls.RANGES[name][0]
         shown = f"{where} {key}"
@@ -156,6 +168,8 @@ def load_scene(path) -> Scene:
 
 
 def _toml_value(x) -> str:
+    if isinstance(x, str):
+        return f'"{x}"'
     if isinstance(x, list):
         return "[" + ", ".join(_toml_value(v) for v in x) + "]"
     return repr(float(x))
@@ -173,6 +187,9 @@ def scene_to_dict(scene: Scene) -> dict:
                 fields[f"{name}_deg"] = value / DEG
             else:
                 fields[name] = value
+        for (s, name) in CHOICE_KEYS:
+            if s == section:
+                fields[name] = getattr(module, name)
         out[section] = fields
     return out
 

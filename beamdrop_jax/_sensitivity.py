@@ -8,6 +8,7 @@ from jaxtyping import Array, Float
 
 from ._scene import SECTIONS, Scene
 from ._simulate import Numerics, _setup, drop_motion, peak_deflection, peak_strain, peak_stress
+from ._beam import mode_shapes
 from ._peaks import field_on_grid
 
 _PEAKS = {"stress": peak_stress, "strain": peak_strain, "deflection": peak_deflection}
@@ -89,7 +90,7 @@ def _smooth(scene, numerics, temperature):
     board = scene.board
     motion = drop_motion(scene, numerics)[0]
     S = _setup(board, motion, numerics, with_check=False)
-    stress = jnp.abs(field_on_grid(S.curvature * (S.k <= S.used), S.Q, S.x, board.length))
+    stress = jnp.abs(field_on_grid(S.curvature * (S.k <= S.used), S.Q, mode_shapes(board, S.x, S.k.shape[0], True)))
     stress = board.youngs_modulus * board.thickness / 2 * stress
     m = jax.lax.stop_gradient(stress.max())
     T = temperature * m

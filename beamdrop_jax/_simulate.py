@@ -15,14 +15,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ._checks import float_dtype
-from ._board import (
-    fundamental_period,
-    modal_velocity_jumps,
-    natural_frequencies,
-    unit_response,
-    unit_response_jet,
-    wavenumbers,
-)
+from ._beam import curvature_scale, modal_velocity_jumps, mode_shapes, natural_frequencies, wavenumbers
+from ._board import fundamental_period, unit_response, unit_response_jet
 from ._checks import Flag, Range, as_float, as_int, as_real, combine, flag_if, is_concrete, raise_if_flagged, require
 from ._impact import LAWS, ImpactResult
 from ._integrate import SOLVERS, solve_modes
@@ -299,7 +293,7 @@ def _modal_solution(board: Board, motion, numerics: Numerics, window, mask):
         else:
             pulse = motion.as_half_sine()
             jumps, times, duration = jnp.stack([pulse.dvA, pulse.dvB])[None], jnp.zeros(1), pulse.duration
-        beta = jax.vmap(lambda j: modal_velocity_jumps(j, M))(jumps) * mask
+        beta = jax.vmap(lambda j: modal_velocity_jumps(board, j, M))(jumps) * mask
         omega = natural_frequencies(board, M)
         return ClosedFormModes(omega, board.damping_ratio, duration, beta, times), jnp.asarray(False)
     if isinstance(motion, PulseTrain):
@@ -341,7 +335,7 @@ def _setup(board: Board, motion, numerics: Numerics, with_check: bool) -> _Setup
     modal, failed = _modal_solution(board, motion, numerics, window, (k <= computed).astype(float_dtype()))
     x = jnp.linspace(0.0, 1.0, nx) * board.length
     Q = modal.grid_factors(t)
-    return _Setup(used, check, window, modal, failed, x, t, Q, k, -(wavenumbers(board, M) ** 2))
+    return _Setup(used, check, window, modal, failed, x, t, Q, k, curvature_scale(board, M))
 
 
 def _membrane(board: Board, numerics: Numerics, rows, is_curvature) -> Array | None:
@@ -353,14 +347,16 @@ def _membrane(board: Board, numerics: Numerics, rows, is_curvature) -> Array | N
     return jnp.stack([kappa2 / (2 * board.thickness) * (c != 0) * curv for c, curv in zip(rows, is_curvature)])
 
 
-def _search(setup: _Setup, board: Board, numerics: Numerics, coeffs, membrane=None) -> FieldPeak:
+def _search(setup: _Setup, board: Board, numerics: Numerics, coeffs, membrane=None, *, curvature) -> FieldPeak:
     """Peaks of the fields with modal coefficients `coeffs` (rows; plus the membrane term of each row when
-    `membrane` is given), in one batched search (one compiled copy)."""
+    `membrane` is given) over the board's curvature shapes (rows where `curvature`, a tuple of bools, is True) or
+    deflection shapes, in one batched search (one compiled copy)."""
     search = dict(candidates=numerics.candidates, newton_steps=numerics.newton_steps, refine=numerics.refine)
+    curvature = jnp.asarray(curvature)
     return jax.vmap(
-        lambda c, m: find_peak(c, setup.modal, setup.Q, setup.x, setup.t, board.length, setup.window, membrane=m,
-                               **search)
-    )(coeffs, membrane)
+        lambda c, m, cv: find_peak(c, setup.modal, setup.Q, setup.x, setup.t, board, setup.window, curvature=cv,
+                                   membrane=m, **search)
+    )(coeffs, membrane, curvature)
 
 
 def _respond(board: Board, motion, numerics: Numerics, flags) -> Response:
@@ -368,7 +364,8 @@ def _respond(board: Board, motion, numerics: Numerics, flags) -> Response:
     used, check, window, k, curvature, failed = S.used, S.check, S.window, S.k, S.curvature, S.failed
     M = numerics.computed_modes
     coeffs = jnp.stack([curvature * (k <= used), curvature * (k <= check), jnp.ones(M) * (k <= used)])
-    peaks = _search(S, board, numerics, coeffs, _membrane(board, numerics, coeffs, (True, True, False)))
+    rows = (True, True, False)
+    peaks = _search(S, board, numerics, coeffs, _membrane(board, numerics, coeffs, rows), curvature=rows)
     kappa, kappa_check, deflection = (jax.tree_util.tree_map(lambda v: v[i], peaks) for i in range(3))
     error = jnp.abs(kappa.value - kappa_check.value) / jnp.maximum(kappa.value, jnp.finfo(window.dtype).tiny)
 
@@ -511,15 +508,17 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     if grid_deflection and numerics.refine and "deflection" in kinds:
         coarse = dataclasses.replace(numerics, refine=False)
         fine_kinds = [k for k in kinds if k != "deflection"]
-        deflection = _search(S, board, coarse, mask[None], _membrane(board, coarse, mask[None], (False,))).value
+        deflection = _search(S, board, coarse, mask[None], _membrane(board, coarse, mask[None], (False,)),
+                             curvature=(False,)).value
         curv = (S.curvature * mask)[None]
-        found = (_search(S, board, numerics, curv, _membrane(board, numerics, curv, (True,))).value
+        found = (_search(S, board, numerics, curv, _membrane(board, numerics, curv, (True,)), curvature=(True,)).value
                  if fine_kinds else jnp.zeros((0,)))
         peaks = jnp.concatenate([deflection, found]) if kinds[0] == "deflection" else jnp.concatenate([found, deflection])
     else:
         rows = jnp.stack([(jnp.ones_like(S.curvature) if k == "deflection" else S.curvature) * mask for k in kinds])
-        membrane = _membrane(board, numerics, rows, tuple(k == "curvature" for k in kinds))
-        peaks = _search(S, board, numerics, rows, membrane).value
+        is_curvature = tuple(k == "curvature" for k in kinds)
+        peaks = _search(S, board, numerics, rows, _membrane(board, numerics, rows, is_curvature),
+                        curvature=is_curvature).value
     scale = {"stress": board.youngs_modulus * board.thickness / 2, "strain": board.thickness / 2, "deflection": 1.0}
     values = jnp.stack([scale[q] * peaks[kinds.index("deflection" if q == "deflection" else "curvature")]
                         for q in quantities])
@@ -604,8 +603,8 @@ def _fields(scene, response, numerics, x, nt):
     modal, _ = _modal_solution(board, motion, numerics, window, (k <= used).astype(float_dtype()))
     Q = modal.grid_factors(t)
     mask = (k <= used).astype(float_dtype())
-    u = field_on_grid(mask, Q, x, board.length)
-    curvature = field_on_grid(-(wavenumbers(board, M) ** 2) * mask, Q, x, board.length)
+    u = field_on_grid(mask, Q, mode_shapes(board, x, M))
+    curvature = field_on_grid(curvature_scale(board, M) * mask, Q, mode_shapes(board, x, M, True))
     strain = -board.thickness / 2 * curvature
     if numerics.stretching:
         scale, R = Q
@@ -625,7 +624,10 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
     elif not bool(response.converged):
         notes.append(f"not converged: {int(response.check_modes)} modes change the peak by "
                      f"{float(response.error_estimate) * 100:.2g} % (Numerics.convergence_rtol = "
-                     "0.1 %); raise Numerics.max_modes")
+                     "0.1 %); " + (
+                         # A check with fewer modes means the count hit its cap.
+                         "raise Numerics.max_modes" if int(response.check_modes) < int(response.n_modes)
+                         else "raise Numerics.pulse_modes (modes up to f_k x duration >= 2 by default)"))
     if float(board.youngs_modulus) < 1e6 or float(board.thickness) > 0.05:
         notes.append(f"the board is not an engineering board (E = {float(board.youngs_modulus):.4g} Pa, thickness "
                      f"{float(board.thickness):.4g} m): the thesis scene's nondimensional units, so stresses in MPa "

@@ -23,10 +23,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._board import support_participation, unit_response
+from ._beam import SYMMETRIC_ENDS, mode_shapes, support_participation
+from ._board import unit_response
 from ._checks import Flag, combine, flag_if, float_dtype
 from ._motion import HalfSine
-from ._peaks import mode_shapes
 from ._scene import Board, Scene, scene_flags
 from ._simulate import Numerics, _search, _setup, drop_motion
 
@@ -164,22 +164,26 @@ def _mirror_sources(n_angles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 @eqx.filter_jit
 def _build(board: Board, duration, numerics: Numerics, n_angles: int):
     M = numerics.computed_modes
-    searched, source, mirrored = _mirror_sources(n_angles)
+    if board.ends in SYMMETRIC_ENDS:
+        searched, source, mirrored = _mirror_sources(n_angles)
+    else:  # no mirror symmetry: every direction is searched
+        searched = source = np.arange(n_angles)
+        mirrored = np.zeros(n_angles, dtype=bool)
     pseudo = jnp.asarray(searched * (2.0 / n_angles), dtype=float_dtype())
 
     def node(p):
         direction = _direction(p)
         S = _setup(board, HalfSine(direction[0], direction[1], duration), numerics, with_check=False)
         mask = (S.k <= S.used).astype(float_dtype())
-        found = _search(S, board, numerics, jnp.stack([S.curvature * mask, mask]))
-        unit = support_participation(M)  # modal velocities per unit dvA and per unit dvB
+        found = _search(S, board, numerics, jnp.stack([S.curvature * mask, mask]), curvature=(True, False))
+        unit = support_participation(board, M)  # modal velocities per unit dvA and per unit dvB
 
-        def at(coeffs, x, t):
+        def at(coeffs, x, t, curvature):
             R = unit_response(t, S.modal.omega, S.modal.zeta, S.modal.duration)
-            return (coeffs * R * mode_shapes(x, board.length, M)) @ unit
+            return (coeffs * R * mode_shapes(board, x, M, curvature)) @ unit
 
-        curvature = at(S.curvature * mask, found.x[0], found.t[0])
-        deflection = at(mask, found.x[1], found.t[1])
+        curvature = at(S.curvature * mask, found.x[0], found.t[0], True)
+        deflection = at(mask, found.x[1], found.t[1], False)
         return curvature, deflection, found.x[0], found.t[0], S.failed
 
     # A few directions at a time: their (x, t) grids then stay in cache (all at once streamed ~40 MB, 2x slower).

@@ -205,7 +205,8 @@ def cmd_drop(args, output):
     output.summary(res.summary(),
                    f"Drop of {_scene_name(args)}: {float(scene.drop.height):g} m onto a corner at "
                    f"{math.degrees(float(scene.drop.orientation)):.1f} deg, "
-                   + (f"half-sine contact {tau * 1e3:g} ms" if tau > 0 else "ideal impulse (contact duration 0)"))
+                   + (f"half-sine contact {tau * 1e3:g} ms" if tau > 0 else "ideal impulse (contact duration 0)")
+                   + ("" if scene.board.ends == "pinned" else f"; board ends {scene.board.ends}"))
     if numerics.max_impacts > 1:
         imp = res.impacts
         rows = [{"impact": i + 1, "t_ms": float(imp.t[i]) * 1e3, "corner_from_G_mm": np.asarray(imp.corner[i]) * 1e3,
@@ -476,6 +477,8 @@ def _setup_jax(args):
     import jax
 
     jax.config.update("jax_enable_x64", not args.float32)
+    if getattr(args, "scene", None):
+        _scene(args)  # a wrong scene file is reported before any word on compiling
     if args.no_cache or os.environ.get("BEAMDROP_NO_CACHE", "") not in ("", "0"):
         print("beamdrop: compiling (the compilation cache is off; about 10 s)", file=sys.stderr)
         return None

@@ -61,7 +61,7 @@ def test_closed_form_modal_history_equals_diffrax():
     motion = bd.HalfSine(2.0, 0.5, 4e-4)
     M = 5
     omega = bd.natural_frequencies(board, M)
-    beta = bd._board.modal_velocity_jumps(jnp.array([2.0, 0.5]), M)
+    beta = bd._beam.modal_velocity_jumps(bd.Board(), jnp.array([2.0, 0.5]), M)
     modes, failed = solve_modes(board, motion, M, jnp.asarray(0.01), jnp.ones(M), solver="Dopri8", rtol=1e-12, atol=1e-16)
     assert not bool(failed)
     for t in np.linspace(0.0, 0.01, 23):
@@ -136,7 +136,7 @@ def test_refined_peak_matches_dense_grid():
     # Brute force: the same modal series on a grid 40x denser in time and 16x in space.
     M = 8
     omega = bd.natural_frequencies(board, M)
-    beta = bd._board.modal_velocity_jumps(jnp.array([4.0, -2.5]), M)
+    beta = bd._beam.modal_velocity_jumps(bd.Board(), jnp.array([4.0, -2.5]), M)
     t = np.linspace(0, float(res.window), 80001)
     x = np.linspace(0, 0.1, 2001)
     Q = np.asarray(jax.vmap(lambda s: beta * bd.unit_response(s, omega, 0.01, 3e-4))(t))
