@@ -34,11 +34,14 @@ from ._trig import sincos
 
 class Ending(enum.IntEnum):
     """Why an impact sequence ended: `MAX_IMPACTS` reached, the housing came to `AT_REST` (next approach speed
-    below `rest_speed`, no turning), or a corner stayed on the ground while the housing turned (`PIVOT`)."""
+    below `rest_speed`, no turning), a corner stayed on the ground while the housing turned (`PIVOT`), or the
+    search for the next impact gave up (`SEARCH_GAVE_UP`: its conservative steps shrink as 1 / spin^2, and a
+    housing spinning at 1e4 rad/s or more needs more than `MAX_ADVANCES` of them)."""
 
     MAX_IMPACTS = 0
     AT_REST = 1
     PIVOT = 2
+    SEARCH_GAVE_UP = 3
 
 
 class Impacts(eqx.Module):
@@ -86,7 +89,7 @@ def corner_heights(q, y, vy, theta, spin, s):
     return h, dh
 
 
-_MAX_ADVANCES = 512
+MAX_ADVANCES = 512
 
 
 def next_contact(width, height, y, vy, theta, spin):
@@ -119,7 +122,7 @@ def next_contact(width, height, y, vy, theta, spin):
 
     def going(carry):
         _, _, done, i = carry
-        return ~jnp.all(done) & (i < _MAX_ADVANCES)
+        return ~jnp.all(done) & (i < MAX_ADVANCES)
 
     zeros = jnp.zeros(4, dtype=scale.dtype)
     s, found, _, _ = jax.lax.while_loop(going, advance, (zeros, zeros > 1, zeros > 1, 0))
@@ -148,7 +151,7 @@ def impact_sequence(
     """The drop's impacts: the first corner impact, then free flight and the next impact, up to `max_impacts`,
     stopping early when the next approach speed is below `rest_speed` (m/s). Returns `(impacts, first)` with
     `first` the first impact's `HousingImpact`. A pivot (see the module notes) sets `Flag.PIVOTING_CONTACT`; a
-    failed search `Flag.SOLVER_FAILED`. Jit-, vmap- and grad-able."""
+    search that gave up (`Ending.SEARCH_GAVE_UP`) `Flag.SOLVER_FAILED`. Jit-, vmap- and grad-able."""
     if not (isinstance(max_impacts, int) and max_impacts >= 1):
         raise ValueError(f"max_impacts = {max_impacts!r}; valid: an int >= 1")
     if not rest_speed > 0:
@@ -195,7 +198,8 @@ def impact_sequence(
         applied = ~f.done & found & (-hit.v0[1] >= rest_speed)
         stopping = ~f.done & ~applied
         turning = jnp.abs(f.spin) * R >= rest_speed
-        ending = jnp.where(stopping, jnp.where(turning, Ending.PIVOT, Ending.AT_REST), f.ending).astype(jnp.int32)
+        why = jnp.where(~found, Ending.SEARCH_GAVE_UP, jnp.where(turning, Ending.PIVOT, Ending.AT_REST))
+        ending = jnp.where(stopping, why, f.ending).astype(jnp.int32)
         keep = lambda new, old: jnp.where(applied, new, old)  # noqa: E731
         t = keep(f.t + s, f.t)
         out = record(hit, t, keep(theta, f.theta), applied)

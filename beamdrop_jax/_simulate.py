@@ -20,7 +20,7 @@ from ._board import fundamental_period, unit_response, unit_response_jet
 from ._checks import Flag, Range, as_float, as_int, as_real, combine, flag_if, is_concrete, raise_if_flagged, require
 from ._impact import LAWS, ImpactResult
 from ._integrate import SOLVERS, solve_modes
-from ._clatter import Impacts, impact_sequence
+from ._clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
 from ._kinematics import HousingImpact, housing_impact
 from ._motion import HalfSine, Impulse, PulseTrain, Record
 from ._peaks import FieldPeak, field_on_grid, find_peak
@@ -465,6 +465,14 @@ def _raise_eagerly(scene: Scene, numerics: Numerics, flags, impacts: Impacts | N
     """The compiled run found a problem: the eager checks name the field and its valid range."""
     check_scene(scene)
     housing_impact(scene, law=numerics.law)
+    if impacts is not None and int(impacts.ending) == Ending.SEARCH_GAVE_UP:
+        n = int(impacts.count)
+        raise ValueError(
+            f"{what}: after impact {n} (t = {float(impacts.t[n - 1]) * 1e3:.4g} ms) the search for the next impact "
+            f"gave up after {MAX_ADVANCES} conservative steps (Flag.SOLVER_FAILED): the housing spins so fast "
+            f"(Drop.spin = {float(scene.drop.spin):.4g} rad/s) that free flight needs finer steps. Use "
+            f"Numerics(max_impacts={n}) for the response to the impacts before it."
+        )
     if impacts is not None and int(flags) & Flag.PIVOTING_CONTACT:
         n = int(impacts.count)
         raise ValueError(
@@ -536,7 +544,8 @@ def _peak(scene: Scene, numerics: Numerics | None, quantity: str):
     numerics = Numerics() if numerics is None else numerics
     value, flags = _scene_peak(scene, numerics, quantity)
     if is_concrete(scene) and int(flags):
-        impacts = drop_motion(scene, numerics)[1] if int(flags) & Flag.PIVOTING_CONTACT else None
+        clatter = int(flags) & (Flag.PIVOTING_CONTACT | Flag.SOLVER_FAILED) and numerics.max_impacts > 1
+        impacts = drop_motion(scene, numerics)[1] if clatter else None
         _raise_eagerly(scene, numerics, flags, impacts, f"peak_{quantity}")
     return value
 

@@ -278,3 +278,19 @@ def test_float32_sequence_and_peak_agree_with_float64():
     np.testing.assert_allclose(np.asarray(imp32.t), np.asarray(imp64.t), rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(np.asarray(imp32.approach_speed), np.asarray(imp64.approach_speed), rtol=1e-5)
     np.testing.assert_allclose(float(peak32), peak64, rtol=1e-4)
+
+
+def test_search_that_gives_up_is_not_called_a_pivot():
+    # At 3e4 rad/s the conservative free-flight steps (~ 1 / spin^2) run out before the next impact: that is the
+    # search giving up, not a corner staying on the ground.
+    scene = bd.Scene.default().replace(**{"drop.spin": 3e4})
+    impacts, _ = bd.impact_sequence(scene, 3)
+    assert int(impacts.ending) == bd.Ending.SEARCH_GAVE_UP
+    assert int(impacts.flags) & bd.Flag.SOLVER_FAILED and not int(impacts.flags) & bd.Flag.PIVOTING_CONTACT
+    with pytest.raises(ValueError, match="gave up") as err:
+        bd.simulate(scene, bd.Numerics(max_impacts=3))
+    assert "stays on the ground" not in str(err.value)
+    with pytest.raises(ValueError, match="gave up"):
+        bd.peak_stress(scene, bd.Numerics(max_impacts=3))
+    # A spin of 1e4 rad/s still finds its impacts.
+    assert int(bd.impact_sequence(bd.Scene.default().replace(**{"drop.spin": 1e4}), 3)[0].ending) == bd.Ending.MAX_IMPACTS
