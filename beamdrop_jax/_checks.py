@@ -20,7 +20,7 @@ class Flag(enum.IntFlag):
 
     OK = 0
     NONFINITE_INPUT = 1
-    NONPOSITIVE_SIZE = 2
+    NONPOSITIVE_SIZE = 2  # a size or material constant <= 0 or outside its magnitude range (`RANGES`)
     RESTITUTION_RANGE = 4
     FRICTION_NEGATIVE = 8
     DURATION_NEGATIVE = 16

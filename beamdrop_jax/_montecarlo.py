@@ -311,8 +311,9 @@ def montecarlo(
     - `batch_size`: drops per compiled chunk (one transfer, one progress step); default min(n, 65536) superposed,
       min(n, 16384) direct, rounded up to a multiple of the drops vmapped at a time (`inner_batch`).
     - `devices`: devices to shard each chunk over (default all local devices).
-    - `refine_deflection` (direct): refine the deflection peak too (default: the grid's maximum, which undershoots
-      by the grid's resolution, about 1 % with the default numerics; stress and strain are always refined).
+    - `refine_deflection` (direct): refine the deflection peak too, 28 % slower (default: the grid's maximum, a
+      lower bound that undershoots by the grid's resolution: by 2.3 % at the 1st percentile and at most 4.8 % over
+      10,000 drops of five scenes, default numerics; stress and strain are always refined).
       Superposed deflections are always refined.
     """
     if not (isinstance(n, (int, np.integer)) and n >= 1):

@@ -23,8 +23,10 @@ from ._checks import DEG, Flag, Range, as_float, combine, flag_if, is_concrete, 
 # larger arguments lose their argument reduction in the fast polynomial the response uses.
 MAX_ANGLE = 1.0e4
 
-def _positive(unit):
-    return Range(0.0, lo_open=True, unit=unit), Flag.NONPOSITIVE_SIZE
+def _positive(unit, lo, hi):
+    """A size or material constant: positive, and within magnitudes where the arithmetic stays exact in float64
+    (beyond them products such as E h^3 or 1/m over- or underflow, and a result could not name its cause)."""
+    return Range(lo, hi, unit=unit), Flag.NONPOSITIVE_SIZE
 
 
 _ANGLE = (Range(-MAX_ANGLE, MAX_ANGLE, unit="rad"), Flag.ANGLE_RANGE)
@@ -68,10 +70,10 @@ class Housing(eqx.Module):
     radius_of_gyration: Float[Array, ""]
 
     RANGES: ClassVar[dict] = {
-        "width": _positive("m"),
-        "height": _positive("m"),
-        "mass": _positive("kg"),
-        "radius_of_gyration": _positive("m"),
+        "width": _positive("m", 1e-4, 100.0),
+        "height": _positive("m", 1e-4, 100.0),
+        "mass": _positive("kg", 1e-6, 1e5),
+        "radius_of_gyration": _positive("m", 1e-5, 100.0),
     }
 
     def __init__(self, width=0.15, height=0.075, mass=0.18, radius_of_gyration=None):
@@ -109,11 +111,11 @@ class Board(eqx.Module):
     ends: str = eqx.field(static=True)
 
     RANGES: ClassVar[dict] = {
-        "length": _positive("m"),
-        "thickness": _positive("m"),
-        "width": _positive("m"),
-        "youngs_modulus": _positive("Pa"),
-        "density": _positive("kg/m^3"),
+        "length": _positive("m", 1e-4, 100.0),
+        "thickness": _positive("m", 1e-6, 10.0),
+        "width": _positive("m", 1e-6, 100.0),
+        "youngs_modulus": _positive("Pa", 1.0, 1e13),
+        "density": _positive("kg/m^3", 1e-3, 1e6),
         # The buckling bound depends on the other fields: checked in __check_init__ and `flags`.
         "axial_force": (Range(unit="N"), Flag.NONFINITE_INPUT),
         "damping_ratio": (Range(0.0, 1.0, hi_open=True), Flag.DAMPING_RANGE),
@@ -240,7 +242,7 @@ def board_ends(placement: Placement, length) -> Float[Array, "2 2"]:
 
 def _board_outside(scene) -> jax.Array:
     ends = board_ends(scene.placement, scene.board.length)
-    half = jnp.stack([scene.housing.width, scene.housing.height], axis=-1)[..., None, :] / 2
+    half = jnp.stack(jnp.broadcast_arrays(scene.housing.width, scene.housing.height), axis=-1)[..., None, :] / 2
     # A relative slack absorbs round-off for a board that spans the housing exactly.
     slack = 1e-9 * jnp.max(half, axis=(-2, -1), keepdims=True)
     return jnp.any(jnp.abs(ends) > half + slack, axis=(-2, -1))
@@ -315,7 +317,8 @@ def _check_fits(scene) -> None:
     raise ValueError(
         f"Placement puts the board ends at {np.round(ends.reshape(-1, 2, 2)[0], 6).tolist()} (m, housing axes from "
         f"G), outside the housing: each end must satisfy |q1| <= {w / 2:g} and |q2| <= {h / 2:g} "
-        "(Housing.width/2, Housing.height/2)"
+        "(Housing.width/2, Housing.height/2); move or turn the board (Placement.centre, Placement.angle) or change "
+        "Board.length"
     )
 
 
@@ -329,6 +332,17 @@ def scene_flags(scene: Scene):
         scene.board.flags(),
         flag_if(_board_outside(scene), Flag.BOARD_OUTSIDE_HOUSING),
     )
+
+
+def require_single(scene: Scene, what: str) -> None:
+    """Raise `ValueError` naming the field if `scene` is a batch (a field with a leading axis): `what` takes one
+    scene (batches go through `jax.vmap` or `montecarlo`). Shapes are static, so this holds under jit too."""
+    for section, cls in SECTIONS.items():
+        for name in cls.RANGES:
+            shape = jnp.shape(getattr(getattr(scene, section), name))
+            if len(shape) != (1 if name in VECTOR_FIELDS else 0):
+                raise ValueError(f"{what} takes one scene, but {section}.{name} has shape {shape}: give one value "
+                                 "(for many drops use jax.vmap or bd.montecarlo)")
 
 
 def check_scene(scene: Scene) -> None:

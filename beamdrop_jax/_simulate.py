@@ -24,7 +24,7 @@ from ._clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
 from ._kinematics import HousingImpact, housing_impact
 from ._motion import HalfSine, Impulse, PulseTrain, Record
 from ._peaks import FieldPeak, field_on_grid, find_peak
-from ._scene import Board, Scene, check_scene, scene_flags
+from ._scene import Board, Scene, check_scene, require_single, scene_flags
 
 METHODS = ("closed_form", "diffrax")
 
@@ -494,6 +494,7 @@ def simulate(scene: Scene, numerics: Numerics | None = None) -> Response:
     come back in `Response.flags` with NaN peaks.
     """
     numerics = Numerics() if numerics is None else numerics
+    require_single(scene, "simulate")
     response = _simulate_jit(scene, numerics)
     if is_concrete(scene) and int(response.flags):
         _raise_eagerly(scene, numerics, response.flags, response.impacts, "simulate")
@@ -542,6 +543,7 @@ def _scene_peak(scene: Scene, numerics: Numerics, quantity: str):
 
 def _peak(scene: Scene, numerics: Numerics | None, quantity: str):
     numerics = Numerics() if numerics is None else numerics
+    require_single(scene, f"peak_{quantity}")
     value, flags = _scene_peak(scene, numerics, quantity)
     if is_concrete(scene) and int(flags):
         clatter = int(flags) & (Flag.PIVOTING_CONTACT | Flag.SOLVER_FAILED) and numerics.max_impacts > 1
@@ -555,7 +557,9 @@ def peak_stress(scene: Scene, numerics: Numerics | None = None) -> Float[Array, 
 
     Equals `simulate(scene, numerics).peak.stress` but computes only that peak (no deflection search, no mode
     check), so gradients and optimisers pay for nothing else. The gradient is the exact gradient of the piece the
-    scene is on (lowest corner, Routh mode), taken at the maximiser (envelope theorem)."""
+    scene is on (lowest corner, Routh mode), taken at the maximiser (envelope theorem). At `Drop.height` = 0 the
+    derivative with respect to the height is infinite (the impact speed is sqrt(2 g h)); everywhere else in the
+    valid domain gradients are finite."""
     return _peak(scene, numerics, "stress")
 
 
