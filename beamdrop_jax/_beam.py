@@ -93,8 +93,9 @@ def _modes(ends: str, n_modes: int) -> tuple[np.ndarray, ...]:
     return b, a, c, d, s, p_A, p_B, g
 
 
-def _evaluate(xp, coeffs, xi, order: int):
-    """d^order phi / d xi^order at xi (broadcast against the modes), with array module xp (numpy or jax.numpy)."""
+def _evaluate(xp, coeffs, xi, orders):
+    """d^order phi / d xi^order at xi (broadcast against the modes) for each of `orders` (an int gives one array),
+    with array module xp (numpy or jax.numpy); the exponentials and the sine and cosine are evaluated once."""
     b, a, c, d, s = coeffs
     ep, em = xp.exp(b * (xi - 1)), xp.exp(-b * xi)
     if xp is np:
@@ -102,8 +103,9 @@ def _evaluate(xp, coeffs, xi, order: int):
     else:
         sn, cs = sincos(b * xi)
     # Derivatives of d cos + s sin cycle with period 4.
-    trig = [d * cs + s * sn, s * cs - d * sn, -(d * cs + s * sn), d * sn - s * cs][order % 4]
-    return b**order * (a * ep + (-1) ** order * c * em + trig)
+    trig = (d * cs + s * sn, s * cs - d * sn, -(d * cs + s * sn), d * sn - s * cs)
+    one = lambda order: b**order * (a * ep + (-1) ** order * c * em + trig[order % 4])  # noqa: E731
+    return one(orders) if isinstance(orders, int) else tuple(one(o) for o in orders)
 
 
 def _jnp(values) -> Array:
@@ -152,19 +154,28 @@ def curvature_scale(board, n_modes: int) -> Float[Array, " n"]:
     return jnp.ones(n_modes, dtype=float_dtype())
 
 
-def mode_shapes(board, x, n_modes: int, curvature=False, order: int = 0) -> Float[Array, "... n"]:
-    """The d^order/dx^order of the deflection shapes phi_k(x / L) (x in m, from end A), or with `curvature` (a
-    bool or a traced 0/1 for boards whose curvature is not a multiple of the deflection shape) of the curvature
-    shapes phi_k''; pinned boards always give the sine and its derivatives (scale by `curvature_scale`)."""
+def mode_shapes(board, x, n_modes: int, curvature=False, orders=0):
+    """The deflection shapes phi_k(x / L) (x in m, from end A; shape (..., n)) or their x-derivatives of each of
+    `orders` (a tuple gives a tuple, evaluated together), or with `curvature` (a bool or a traced 0/1) those of
+    the curvature shapes phi_k''; pinned boards always give the sine and its derivatives (their curvature is the
+    sine times `curvature_scale`)."""
     x = jnp.asarray(x)[..., None]
     L = board.length
+    single = isinstance(orders, int)
+    orders = (orders,) if single else tuple(orders)
     if board.ends == "pinned":
-        sn, cs = sincos(x * mode_numbers(n_modes) * math.pi / L)
-        return (mode_numbers(n_modes) * math.pi / L) ** order * [sn, cs, -sn, -cs][order % 4]
-    coeffs = tuple(_jnp(v) for v in _modes(board.ends, n_modes)[:5])
-    xi = x / L
-    deflection = _evaluate(jnp, coeffs, xi, order) / L**order
-    if curvature is False:
-        return deflection
-    bending = _evaluate(jnp, coeffs, xi, order + 2) / L ** (order + 2)
-    return jnp.where(curvature, bending, deflection)
+        k = mode_numbers(n_modes) * (math.pi / L)
+        sn, cs = sincos(x * k)
+        # Plain products (integer powers here compiled slower in the peak search's inner loop).
+        derivative = {0: sn, 1: k * cs, 2: -(k * k) * sn, 3: -(k * k * k) * cs, 4: (k * k) * (k * k) * sn}
+        out = tuple(derivative[o] for o in orders)
+    else:
+        coeffs = tuple(_jnp(v) for v in _modes(board.ends, n_modes)[:5])
+        wanted = orders if curvature is False else orders + tuple(o + 2 for o in orders)
+        values = dict(zip(wanted, _evaluate(jnp, coeffs, x / L, wanted)))
+        deflection = tuple(values[o] / L**o for o in orders)
+        if curvature is False:
+            out = deflection
+        else:
+            out = tuple(jnp.where(curvature, values[o + 2] / L ** (o + 2), v) for o, v in zip(orders, deflection))
+    return out[0] if single else out

@@ -124,7 +124,7 @@ def find_peak(
         # Field derivatives in closed form in x; q, q', q'' from the modal solution's own jet in t. Scalars, not
         # stacked arrays: tiny stacks and transposes inside the loop cost more than the arithmetic under vmap.
         q, dq, ddq = modal_c.jet(t)
-        sn, dsn, ddsn = (mode_shapes(board_c, x, n, curvature, order) for order in range(3))
+        sn, dsn, ddsn = mode_shapes(board_c, x, n, curvature, (0, 1, 2))
         a, b = sign * coeffs_c * q, sign * coeffs_c * dq
         f = jnp.sum(a * sn)
         g = (jnp.sum(a * dsn), jnp.sum(b * sn))
