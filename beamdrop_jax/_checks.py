@@ -35,6 +35,7 @@ class Flag(enum.IntFlag):
     ANGLE_RANGE = 8192
     NONFINITE_RESULT = 16384
     CONTACT_MATRIX = 32768
+    WINDOW_RANGE = 65536  # an explicit `Numerics.window` leaves the top mode < 2 time-grid points per period
 
     @classmethod
     def describe(cls, flags) -> list[str]:

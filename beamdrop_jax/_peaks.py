@@ -18,6 +18,7 @@ from collections.abc import Callable
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 from ._beam import mode_shapes
 
@@ -192,3 +193,154 @@ def find_peak(
         value = value + jnp.sum(membrane * q * q)
     err = jax.lax.stop_gradient(gain_all[best] / jnp.maximum(f_all[best], jnp.finfo(A.dtype).tiny))
     return FieldPeak(value, x_star, t_star, err)
+
+
+class PlatePeak(eqx.Module):
+    """Peak of a surface measure over a plate and the window: `value`, where (`x` from end A, `y` from the centre
+    line, m), when (`t`, s), and `error` (relative gain of the last refinement step)."""
+
+    value: Float[Array, ""]
+    x: Float[Array, ""]
+    y: Float[Array, ""]
+    t: Float[Array, ""]
+    error: Float[Array, ""]
+
+
+def _outside_mounts(plate, x, y):
+    """Projection of points (x, y) (m) out of the mount discs onto their circles; no-op without mounts."""
+    if plate.mounts is None:
+        return x, y
+    for mx, my in plate.mounts:
+        dx, dy = x - mx, y - my
+        d = jnp.sqrt(dx * dx + dy * dy)
+        inside = d < plate.mount_radius
+        scale = plate.mount_radius / jnp.where(d > 0, d, 1.0)
+        x = jnp.where(inside, mx + jnp.where(d > 0, dx * scale, plate.mount_radius), x)
+        y = jnp.where(inside, my + dy * scale, y)
+    return x, y
+
+
+def find_plate_peak(
+    measure: Callable,
+    coeffs: Float[Array, " n"],
+    modal: Callable,
+    Q: tuple,
+    modes,
+    xi: Float[Array, " nx"],
+    eta: Float[Array, " ny"],
+    t: Float[Array, " nt"],
+    window,
+    *,
+    candidates: int = 4,
+    newton_steps: int = 6,
+    refine: bool = True,
+) -> PlatePeak:
+    """Peak over a plate and the window of `measure(plate, u, k_xx, k_yy, k_xy)` (e.g. the largest principal
+    surface strain) of the field with modal coefficients `coeffs` (the modes' `PlateModes`), from the evenly spaced
+    grid `xi` x `eta` (x / L, y / W) and times `t` (`Q = modal.grid_factors(t)`), points inside mount discs left
+    out.
+    The grid's best `candidates` (largest local maxima in time) are refined by Newton's method in (x, y, t) in a
+    trust region of one grid cell (derivatives by automatic differentiation), steps that enter a mount disc
+    projected onto its circle. The value's gradient is taken at the maximiser (envelope theorem); on a mount's
+    circle the point moves with the mount."""
+    plate = modes.plate
+    cell = jnp.stack([xi[1] - xi[0], eta[1] - eta[0], t[1] - t[0]])
+    xi, eta = (v.ravel() for v in jnp.meshgrid(xi, eta, indexing="ij"))
+    x, y = xi * plate.length, eta * plate.width
+    fields = [field_on_grid(coeffs, Q, s) for s in modes.shapes(x, y)]
+    A = measure(plate, *fields)
+    if plate.mounts is not None:
+        near = jnp.any(jnp.hypot(x[:, None] - plate.mounts[:, 0], y[:, None] - plate.mounts[:, 1])
+                       < plate.mount_radius * (1 - 1e-9), axis=1)
+        A = jnp.where(near[:, None], -jnp.inf, A)
+    envelope = A.max(axis=0)
+    left = jnp.concatenate([jnp.full((1,), -jnp.inf, A.dtype), envelope[:-1]])
+    right = jnp.concatenate([envelope[1:], jnp.full((1,), -jnp.inf, A.dtype)])
+    k_cand = min(candidates if refine else 1, envelope.shape[0])
+    idx = _largest(jnp.where((envelope >= left) & (envelope >= right), envelope, -jnp.inf), k_cand)
+    where_p = A[:, idx].argmax(axis=0)
+
+    coeffs_c, modes_c, modal_c, window_c = stop_gradient((coeffs, modes, modal, window))
+    plate_c = modes_c.plate
+    cell = jax.lax.stop_gradient(cell)
+
+    def value(z):  # z = (xi, eta, t) / cell
+        p = z * cell
+        px, py = _outside_mounts(plate_c, p[0] * plate_c.length, p[1] * plate_c.width)
+        q = modal_c(p[2])
+        return measure(plate_c, *(jnp.sum(coeffs_c * q * s) for s in modes_c.shapes(px, py)))
+
+    lo = jnp.stack([0.0, -0.5, 0.0]) / cell
+    hi = jnp.stack([1.0, 0.5, window_c]) / cell
+
+    def project(z):
+        z = jnp.clip(z, lo, hi)
+        px, py = _outside_mounts(plate_c, z[0] * cell[0] * plate_c.length, z[1] * cell[1] * plate_c.width)
+        return jnp.stack([px / plate_c.length / cell[0], py / plate_c.width / cell[1], z[2]])
+
+    # Derivatives by central differences on a 19-point stencil (h = 1/16 cell): one batched evaluation, which
+    # compiles to a fraction of the program that nested automatic differentiation makes.
+    h = 1.0 / 16
+    eye = np.eye(3)
+    pairs = [(i, j) for i in range(3) for j in range(i + 1, 3)]
+    stencil = np.concatenate([np.zeros((1, 3)), eye, -eye] + [np.stack([eye[i] * a + eye[j] * b for a in (1, -1)
+                                                                        for b in (1, -1)]) for i, j in pairs]) * h
+
+    def derivatives(z):
+        f = jax.vmap(value)(z + stencil)
+        f0, plus, minus = f[0], f[1:4], f[4:7]
+        g = (plus - minus) / (2 * h)
+        H = jnp.diag((plus - 2 * f0 + minus) / h**2)
+        for n, (i, j) in enumerate(pairs):
+            pp, pm, mp, mm = f[7 + 4 * n: 11 + 4 * n]
+            H = H.at[i, j].set((pp - pm - mp + mm) / (4 * h * h)).at[j, i].set((pp - pm - mp + mm) / (4 * h * h))
+        return f0, g, H
+
+    def refine_one(z0, f_grid):
+        def step(carry, _):
+            z, f, g, H, _, radius = carry
+            # Coordinates on a bound with the measure rising outwards stay there (a constrained maximum).
+            held = ((z <= lo) & (g < 0)) | ((z >= hi) & (g > 0))
+            g = jnp.where(held, 0.0, g)
+            H = jnp.where(held[:, None] | held[None, :], -jnp.eye(3, dtype=H.dtype), H)
+            # Newton along the Hessian's concave directions, half a cell uphill along the others (none where the
+            # measure is flat: a plate bent uniformly across its width).
+            w, V = jnp.linalg.eigh(H)
+            gv = V.T @ g
+            uphill = 0.5 * jnp.sign(gv) * (jnp.abs(gv) > 1e-9 * jnp.abs(f))
+            u = V @ jnp.where(w < 0, -gv / jnp.where(w < 0, w, -1.0), uphill)
+            u = u * jnp.minimum(1.0, radius / jnp.maximum(jnp.max(jnp.abs(u)), 1e-30))
+            z_new = project(z + u)
+            f_new, g_new, H_new = derivatives(z_new)
+            better = f_new > f
+            keep = lambda a, b: jax.tree_util.tree_map(lambda u, v: jnp.where(better, u, v), a, b)  # noqa: E731
+            new = keep((z_new, f_new, g_new, H_new), (z, f, g, H))
+            return (*new, jnp.where(better, f_new - f, 0.0), jnp.where(better, radius, 0.5 * radius)), None
+
+        carry = (z0, *derivatives(z0), jnp.zeros_like(f_grid), jnp.ones_like(f_grid))
+        if refine and newton_steps:
+            carry, _ = jax.lax.scan(step, carry, None, length=newton_steps)
+        z, f, _, _, gain, _ = carry
+        grid_wins = ~(f >= f_grid)
+        return jnp.where(grid_wins, z0, z), jnp.maximum(f, f_grid), gain
+
+    z0 = jnp.stack([xi[where_p], eta[where_p], t[idx]], axis=-1) / cell
+    z_all, f_all, gain_all = jax.vmap(refine_one)(jax.lax.stop_gradient(z0), jax.lax.stop_gradient(A[where_p, idx]))
+    tied = f_all >= jnp.max(f_all) * (1.0 - 1e-9)
+    best = jnp.argmin(jnp.where(tied, z_all[:, 2], jnp.inf))
+    p_best = jax.lax.stop_gradient(z_all[best] * cell)
+    px, py = p_best[0] * plate.length, p_best[1] * plate.width
+    if plate.mounts is not None:
+        # On a mount's circle the constrained maximiser moves with the mount (and with the radius).
+        for mx, my in plate.mounts:
+            dx, dy = jax.lax.stop_gradient((px - mx, py - my))
+            d = jnp.hypot(dx, dy)
+            on = d <= jax.lax.stop_gradient(plate.mount_radius) * (1 + 1e-6)
+            d_safe = jnp.where(d > 0, d, 1.0)
+            px = jnp.where(on, mx + plate.mount_radius * dx / d_safe, px)
+            py = jnp.where(on, my + plate.mount_radius * dy / d_safe, py)
+    t_star = jnp.where(p_best[2] >= window * (1.0 - 1e-9), window, p_best[2])
+    q = modal(t_star)
+    f = measure(plate, *(jnp.sum(coeffs * q * s) for s in modes.shapes(px, py)))
+    err = jax.lax.stop_gradient(gain_all[best] / jnp.maximum(f_all[best], jnp.finfo(A.dtype).tiny))
+    return PlatePeak(f, px, py, t_star, err)

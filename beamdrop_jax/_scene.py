@@ -283,7 +283,7 @@ class Scene(eqx.Module):
         drops are."""
         out = self
         for path, value in paths.items():
-            cls, name = _field_at(path)
+            cls, name = _field_at(path, self)
             valid = cls.RANGES[name][0]
             new = as_float(value, path, valid)
             if check_ranges:
@@ -296,17 +296,23 @@ class Scene(eqx.Module):
         return out
 
 
-def _field_at(path: str):
+def _section_classes(scene) -> dict:
+    """The class of each section of a scene (the board's is `Board` or `Plate`)."""
+    return {section: type(getattr(scene, section)) for section in SECTIONS}
+
+
+def _field_at(path: str, scene=None):
     """(class, field name) of a dotted scene path, or a `ValueError` listing the valid paths."""
     import difflib
 
-    valid = [f"{section}.{name}" for section, cls in SECTIONS.items() for name in cls.RANGES]
+    classes = SECTIONS if scene is None else _section_classes(scene)
+    valid = [f"{section}.{name}" for section, cls in classes.items() for name in cls.RANGES]
     parts = path.split(".")
-    if len(parts) != 2 or parts[0] not in SECTIONS or parts[1] not in SECTIONS[parts[0]].RANGES:
+    if len(parts) != 2 or parts[0] not in classes or parts[1] not in classes[parts[0]].RANGES:
         close = difflib.get_close_matches(path, valid, n=1)
         hint = f"; did you mean {close[0]!r}?" if close else f"; valid: {', '.join(valid)}"
         raise ValueError(f"no scene field {path!r}{hint}")
-    return SECTIONS[parts[0]], parts[1]
+    return classes[parts[0]], parts[1]
 
 
 def _check_fits(scene) -> None:
@@ -337,7 +343,7 @@ def scene_flags(scene: Scene):
 def require_single(scene: Scene, what: str) -> None:
     """Raise `ValueError` naming the field if `scene` is a batch (a field with a leading axis): `what` takes one
     scene (batches go through `jax.vmap` or `montecarlo`). Shapes are static, so this holds under jit too."""
-    for section, cls in SECTIONS.items():
+    for section, cls in _section_classes(scene).items():
         for name in cls.RANGES:
             shape = jnp.shape(getattr(getattr(scene, section), name))
             if len(shape) != (1 if name in VECTOR_FIELDS else 0):

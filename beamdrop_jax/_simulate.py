@@ -23,7 +23,8 @@ from ._integrate import SOLVERS, solve_modes
 from ._clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
 from ._kinematics import HousingImpact, housing_impact
 from ._motion import HalfSine, Impulse, PulseTrain, Record
-from ._peaks import FieldPeak, field_on_grid, find_peak
+from ._peaks import FieldPeak, field_on_grid, find_peak, find_plate_peak
+from ._plate import Plate, plate_modes, surface_strain, surface_stress
 from ._scene import Board, Scene, check_scene, require_single, scene_flags
 
 METHODS = ("closed_form", "diffrax")
@@ -124,7 +125,8 @@ class Peak(eqx.Module):
     chord AB) with its own `deflection_x`, `deflection_t`; `search_error`: relative error estimate of the stress
     peak search. With mid-plane stretching (`Numerics(stretching=True)`) `stress` and `strain` are those of the
     face in tension, bending plus membrane, and `membrane_stress` (Pa) is the membrane part at the peak (0
-    without stretching)."""
+    without stretching). On a plate `stress` and `strain` are the largest principal surface values, `y` and
+    `deflection_y` (m, from the centre line) say where across the width (0 for a beam)."""
 
     stress: Float[Array, ""]
     membrane_stress: Float[Array, ""]
@@ -135,6 +137,8 @@ class Peak(eqx.Module):
     deflection_x: Float[Array, ""]
     deflection_t: Float[Array, ""]
     search_error: Float[Array, ""]
+    y: Float[Array, ""]
+    deflection_y: Float[Array, ""]
 
 
 class Response(eqx.Module):
@@ -149,6 +153,7 @@ class Response(eqx.Module):
     - `error_estimate`: |peak(n_modes) - peak(check_modes)| / peak(n_modes), relative, for the stress.
     - `converged`: `error_estimate <= Numerics.convergence_rtol`.
     - `window`: time window, s (to one fundamental period after the last impact's pulse). `flags`: `Flag` mask (0 = valid; otherwise the peak fields are NaN).
+    - `gauges`: strain gauge readings (`Gauges`) at the points asked for (plates; None otherwise); `is_plate`.
     """
 
     impulse: ImpactResult | None
@@ -163,6 +168,8 @@ class Response(eqx.Module):
     converged: Bool[Array, ""]
     window: Float[Array, ""]
     flags: Int[Array, ""]
+    gauges: "Gauges | None" = None
+    is_plate: bool = eqx.field(static=True, default=False)
 
     def summary(self) -> dict:
         """The numbers of one response, units in the keys (JSON-ready with `plain`; `repr` prints them)."""
@@ -188,16 +195,22 @@ class Response(eqx.Module):
             "peak_strain_microstrain": p.strain * 1e6,
             **({"peak_membrane_stress_MPa": p.membrane_stress / 1e6} if float(p.membrane_stress) else {}),
             "peak_stress_x_mm": p.x * 1e3,
+            **({"peak_stress_y_mm": p.y * 1e3} if self.is_plate else {}),
             "peak_stress_t_ms": p.t * 1e3,
             "peak_deflection_mm": p.deflection * 1e3,
             "peak_deflection_x_mm": p.deflection_x * 1e3,
+            **({"peak_deflection_y_mm": p.deflection_y * 1e3} if self.is_plate else {}),
             "peak_deflection_t_ms": p.deflection_t * 1e3,
             "converged": self.converged,
             "mode_check_relative_change": self.error_estimate,
             "window_ms": self.window * 1e3,
             "flags": Flag.describe(self.flags),
         }
+        if self.gauges is not None:
+            out["gauge_peak_strain_microstrain"] = self.gauges.peak_strain * 1e6
+            out["gauge_peak_time_ms"] = self.gauges.peak_time * 1e3
         return plain(out)
+
 
     def __repr__(self) -> str:
         from ._report import summary_text
@@ -323,6 +336,39 @@ class _Setup(NamedTuple):
     Q: Array
     k: Array
     curvature: Array
+    flags: Array
+
+
+MIN_POINTS_PER_PERIOD = 2
+"""Time-grid points per period of the top mode below which an explicit `Numerics.window` is flagged: the grid
+then cannot see that mode's peaks and Newton refinement starts from the wrong ones."""
+
+
+def _window_points(board: Board, numerics: Numerics, used):
+    """Time-grid points per period of the top used mode over an explicit window (inf with the default window,
+    which spans one fundamental period after the pulse and is sized for it)."""
+    if numerics.window is None:
+        return jnp.asarray(jnp.inf, dtype=float_dtype())
+    omega = natural_frequencies(board, numerics.computed_modes)
+    f_top = omega[jnp.clip(used, 1, numerics.computed_modes) - 1] / (2 * math.pi)
+    return (numerics.grid_shape()[1] - 1) / (numerics.window * f_top)
+
+
+def _raise_if_window(board: Board, motion, numerics: Numerics, flags, what: str, with_check: bool) -> None:
+    """Eagerly, `Flag.WINDOW_RANGE` as a `ValueError` naming the field, its value and the valid range."""
+    if not int(flags) & Flag.WINDOW_RANGE:
+        return
+    used, check = _mode_counts(board, motion, numerics)
+    used = int(max(used, check) if with_check else used)
+    points = float(_window_points(board, numerics, used))
+    nt = numerics.grid_shape()[1]
+    longest = numerics.window * points / MIN_POINTS_PER_PERIOD
+    needed = math.ceil(numerics.points_per_period * MIN_POINTS_PER_PERIOD / points)
+    raise ValueError(
+        f"{what}: Numerics.window = {numerics.window:g} s leaves mode {used} (the highest computed) {points:.3g} "
+        f"time-grid points per period ({nt} points in all; Flag.WINDOW_RANGE); valid: window <= {longest:.4g} s "
+        f"with points_per_period = {numerics.points_per_period}, or points_per_period >= {needed} for this window"
+    )
 
 
 def _setup(board: Board, motion, numerics: Numerics, with_check: bool) -> _Setup:
@@ -335,7 +381,10 @@ def _setup(board: Board, motion, numerics: Numerics, with_check: bool) -> _Setup
     modal, failed = _modal_solution(board, motion, numerics, window, (k <= computed).astype(float_dtype()))
     x = jnp.linspace(0.0, 1.0, nx) * board.length
     Q = modal.grid_factors(t)
-    return _Setup(used, check, window, modal, failed, x, t, Q, k, curvature_scale(board, M))
+    top = jnp.maximum(used, check) if with_check else used
+    flags = flag_if(_window_points(board, numerics, top) < MIN_POINTS_PER_PERIOD, Flag.WINDOW_RANGE)
+    curvature = jnp.ones(M, dtype=float_dtype()) if isinstance(board, Plate) else curvature_scale(board, M)
+    return _Setup(used, check, window, modal, failed, x, t, Q, k, curvature, flags)
 
 
 def _membrane(board: Board, numerics: Numerics, rows, is_curvature) -> Array | None:
@@ -359,7 +408,32 @@ def _search(setup: _Setup, board: Board, numerics: Numerics, coeffs, membrane=No
     )(coeffs, membrane, curvature)
 
 
-def _respond(board: Board, motion, numerics: Numerics, flags) -> Response:
+def _gauge_points(gauges):
+    """Gauge points as an (g, 2) array, or None; a clear error for anything else."""
+    if gauges is None:
+        return None
+    points = as_float(gauges, "gauges", Range(unit="m"))
+    if points.ndim != 2 or points.shape[-1] != 2 or points.shape[0] < 1:
+        raise ValueError(f"gauges has shape {points.shape}; valid: ((x, y), ...) in m, x from end A, y from the "
+                         "centre line")
+    return points
+
+
+def _first_jumps(motion):
+    """(dvA, dvB) of a support motion's first pulse."""
+    if isinstance(motion, Record):
+        return motion.velocity_jumps
+    if isinstance(motion, PulseTrain):
+        return jnp.stack([motion.dvA[0], motion.dvB[0]])
+    pulse = motion.as_half_sine()
+    return jnp.stack([pulse.dvA, pulse.dvB])
+
+
+def _respond(board: Board, motion, numerics: Numerics, flags, gauges=None) -> Response:
+    if isinstance(board, Plate):
+        return _respond_plate(board, motion, numerics, flags, gauges)
+    if gauges is not None:
+        raise ValueError("gauges are read on plates (bd.Plate); a beam's strain along x is in bd.response_fields")
     S = _setup(board, motion, numerics, with_check=True)
     used, check, window, k, curvature, failed = S.used, S.check, S.window, S.k, S.curvature, S.failed
     M = numerics.computed_modes
@@ -372,7 +446,8 @@ def _respond(board: Board, motion, numerics: Numerics, flags) -> Response:
     half_h = board.thickness / 2
     # Valid inputs whose magnitudes overflow or underflow the arithmetic: a flag, never a silent NaN.
     nonfinite = ~jnp.isfinite(kappa.value) | ~jnp.isfinite(deflection.value)
-    flags = combine(flags, board.flags(), flag_if(failed, Flag.SOLVER_FAILED), flag_if(nonfinite, Flag.NONFINITE_RESULT))
+    flags = combine(flags, board.flags(), S.flags, flag_if(failed, Flag.SOLVER_FAILED),
+                    flag_if(nonfinite, Flag.NONFINITE_RESULT))
     bad = flags != 0
     nan = lambda v: jnp.where(bad, jnp.nan, v)  # noqa: E731 - flagged results are NaN, never a wrong number
     if numerics.stretching:
@@ -390,19 +465,14 @@ def _respond(board: Board, motion, numerics: Numerics, flags) -> Response:
         deflection_x=nan(deflection.x),
         deflection_t=nan(deflection.t),
         search_error=kappa.error,
+        y=jnp.zeros_like(kappa.x),
+        deflection_y=jnp.zeros_like(kappa.x),
     )
-    if isinstance(motion, Record):
-        jumps = motion.velocity_jumps
-    elif isinstance(motion, PulseTrain):
-        jumps = jnp.stack([motion.dvA[0], motion.dvB[0]])
-    else:
-        pulse = motion.as_half_sine()
-        jumps = jnp.stack([pulse.dvA, pulse.dvB])
     return Response(
         impulse=None,
         housing=None,
         impacts=None,
-        support_jumps=jumps,
+        support_jumps=_first_jumps(motion),
         peak=peak,
         frequencies=natural_frequencies(board, M) / (2 * math.pi),
         n_modes=used,
@@ -414,14 +484,133 @@ def _respond(board: Board, motion, numerics: Numerics, flags) -> Response:
     )
 
 
+class Gauges(eqx.Module):
+    """Strain gauges on a plate's face z = +h/2 (where the peak is largest in magnitude both faces read the same
+    magnitude): at points (`x`, `y`) (m), over the time grid `t` (s), the rosette components `exx`, `eyy`,
+    `gxy` (engineering shear) and the largest principal strain magnitude `strain`, each (gauges, nt); and per
+    gauge its `peak_strain` and `peak_time` (refined between grid points)."""
+
+    x: Float[Array, " g"]
+    y: Float[Array, " g"]
+    t: Float[Array, " nt"]
+    exx: Float[Array, "g nt"]
+    eyy: Float[Array, "g nt"]
+    gxy: Float[Array, "g nt"]
+    strain: Float[Array, "g nt"]
+    peak_strain: Float[Array, " g"]
+    peak_time: Float[Array, " g"]
+
+    def rosette(self, angle) -> Float[Array, "g nt"]:
+        """The strain a gauge at `angle` (rad from the x axis) reads: exx cos^2 + eyy sin^2 + gxy sin cos."""
+        c, s = math.cos(angle), math.sin(angle)
+        return self.exx * c * c + self.eyy * s * s + self.gxy * s * c
+
+
+def _plate_strain(plate, u, kxx, kyy, kxy):
+    return surface_strain(plate, kxx, kyy, kxy)
+
+
+def _plate_stress(plate, u, kxx, kyy, kxy):
+    return surface_stress(plate, kxx, kyy, kxy)
+
+
+def _plate_deflection(plate, u, kxx, kyy, kxy):
+    return jnp.abs(u)
+
+
+PLATE_MEASURES = {"stress": _plate_stress, "strain": _plate_strain, "deflection": _plate_deflection}
+
+
+def _plate_grid(plate: Plate):
+    """Normalised search grid (xi, eta): two points per basis function along each direction, edges included."""
+    return jnp.linspace(0.0, 1.0, 2 * plate.basis[0] + 1), jnp.linspace(-0.5, 0.5, 2 * plate.basis[1] + 1)
+
+
+def _plate_searches(S: _Setup, plate: Plate, numerics: Numerics, modes, kinds: tuple[str, ...], masks):
+    """Peaks of the measures `kinds` (of `PLATE_MEASURES`) of the fields with modal masks `masks` (rows), in one
+    batched search (one compiled copy)."""
+    measures = tuple(PLATE_MEASURES[k] for k in kinds)
+
+    def search(mask, which):
+        def measure(*args):
+            return jnp.select([which == i for i in range(len(measures))], [m(*args) for m in measures])
+
+        return find_plate_peak(measure, mask, S.modal, S.Q, modes, *_plate_grid(plate), S.t, S.window,
+                               candidates=numerics.candidates, newton_steps=numerics.newton_steps,
+                               refine=numerics.refine)
+
+    return jax.vmap(search)(masks, jnp.arange(len(kinds)))
+
+
+def _gauges(plate: Plate, S: _Setup, modes, mask, points) -> Gauges:
+    points = jnp.asarray(points, dtype=float_dtype())
+    gx, gy = points[:, 0], points[:, 1]
+    _, kxx, kyy, kxy = (field_on_grid(mask, S.Q, v) for v in modes.shapes(gx, gy))
+    z = plate.thickness / 2
+    strain = surface_strain(plate, kxx, kyy, kxy)
+    # Peak time of each gauge: grid maximum, then Newton in t on the modal solution.
+    j = strain.argmax(axis=1)
+
+    def reading(x, y, t):
+        q = S.modal(t) * mask
+        _, a, b, c = (jnp.sum(q * v) for v in modes.shapes(x, y))
+        return surface_strain(plate, a, b, c)
+
+    def refine(x, y, t0):
+        f = lambda t: reading(x, y, t)  # noqa: E731
+        def step(t, _):
+            g, h = jax.grad(f)(t), jax.grad(jax.grad(f))(t)
+            dt = S.t[1] - S.t[0]
+            move = jnp.where(h < 0, -g / jnp.where(h < 0, h, -1.0), 0.0)
+            t_new = jnp.clip(t + jnp.clip(move, -dt, dt), 0.0, S.window)
+            return jnp.where(f(t_new) > f(t), t_new, t), None
+        return jax.lax.scan(step, t0, None, length=4)[0]
+
+    t_peak = jax.lax.stop_gradient(jax.vmap(refine)(gx, gy, S.t[j]))
+    peak = jnp.maximum(jax.vmap(reading)(gx, gy, t_peak), strain[jnp.arange(gx.shape[0]), j])
+    return Gauges(gx, gy, S.t, -z * kxx, -z * kyy, -2 * z * kxy, strain, peak, t_peak)
+
+
+def _respond_plate(plate: Plate, motion, numerics: Numerics, flags, gauges=None) -> Response:
+    if numerics.stretching:
+        raise ValueError("Numerics.stretching = True models pinned beams only, not plates")
+    S = _setup(plate, motion, numerics, with_check=True)
+    M = numerics.computed_modes
+    modes = plate_modes(plate, M)
+    used_mask = (S.k <= S.used).astype(float_dtype())
+    masks = jnp.stack([used_mask, (S.k <= S.check).astype(float_dtype()), used_mask, used_mask])
+    found = _plate_searches(S, plate, numerics, modes, ("stress", "stress", "strain", "deflection"), masks)
+    stress, check, strain, deflection = (jax.tree_util.tree_map(lambda v: v[i], found) for i in range(4))
+    error = jnp.abs(stress.value - check.value) / jnp.maximum(stress.value, jnp.finfo(S.window.dtype).tiny)
+    nonfinite = ~jnp.isfinite(stress.value) | ~jnp.isfinite(deflection.value)
+    flags = combine(flags, plate.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
+                    flag_if(nonfinite, Flag.NONFINITE_RESULT))
+    bad = flags != 0
+    nan = lambda v: jnp.where(bad, jnp.nan, v)  # noqa: E731
+    peak = Peak(
+        stress=nan(stress.value), membrane_stress=jnp.zeros_like(stress.value), strain=nan(strain.value),
+        x=nan(stress.x), t=nan(stress.t), deflection=nan(deflection.value), deflection_x=nan(deflection.x),
+        deflection_t=nan(deflection.t), search_error=stress.error, y=nan(stress.y), deflection_y=nan(deflection.y),
+    )
+    return Response(
+        impulse=None, housing=None, impacts=None, support_jumps=_first_jumps(motion), peak=peak,
+        frequencies=modes.frequencies() / (2 * math.pi), n_modes=S.used, check_modes=S.check, error_estimate=error,
+        converged=(error <= numerics.convergence_rtol) & ~bad, window=S.window, flags=flags,
+        gauges=None if gauges is None else _gauges(plate, S, modes, used_mask, gauges), is_plate=True,
+    )
+
+
 @eqx.filter_jit
-def _board_response_jit(board, motion, numerics):
-    return _respond(board, motion, numerics, jnp.int32(0))
+def _board_response_jit(board, motion, numerics, gauges):
+    return _respond(board, motion, numerics, jnp.int32(0), gauges)
 
 
-def board_response(board: Board, motion, numerics: Numerics | None = None) -> Response:
-    """Peak response of a board to a support motion: `Impulse`, `HalfSine`, `PulseTrain` (closed form only) or
-    `Record` (needs `Numerics(method="diffrax")`). Jit- and vmap-able."""
+def board_response(board: Board | Plate, motion, numerics: Numerics | None = None, gauges=None) -> Response:
+    """Peak response of a board (`Board` or `Plate`) to a support motion: `Impulse`, `HalfSine`, `PulseTrain`
+    (closed form only) or `Record` (needs `Numerics(method="diffrax")`). On a plate, `gauges=((x, y), ...)` (m)
+    reads strain gauges there (`Response.gauges`). Jit- and vmap-able."""
+    if not isinstance(board, (Board, Plate)):
+        raise TypeError(f"board must be a bd.Board or a bd.Plate, got {type(board).__name__}")
     numerics = Numerics() if numerics is None else numerics
     if not isinstance(motion, (Impulse, HalfSine, PulseTrain, Record)):
         raise TypeError(f"motion must be an Impulse, HalfSine, PulseTrain or Record, got {type(motion).__name__}")
@@ -429,9 +618,10 @@ def board_response(board: Board, motion, numerics: Numerics | None = None) -> Re
         raise ValueError('a PulseTrain support motion needs Numerics(method="closed_form")')
     if isinstance(motion, Record) and numerics.method != "diffrax":
         raise ValueError('a Record support motion needs Numerics(method="diffrax") (it has no closed form)')
-    response = _board_response_jit(board, motion, numerics)
+    response = _board_response_jit(board, motion, numerics, _gauge_points(gauges))
     if is_concrete(board, motion) and int(response.flags):
         board.__check_init__()
+        _raise_if_window(board, motion, numerics, response.flags, "board_response", with_check=True)
         raise_if_flagged(response.flags & ~Flag.SOLVER_FAILED, "board_response")
     return response
 
@@ -450,9 +640,9 @@ def drop_motion(scene: Scene, numerics: Numerics | None = None):
     return motion, impacts, first, impacts.flags
 
 
-def _simulate(scene: Scene, numerics: Numerics) -> Response:
+def _simulate(scene: Scene, numerics: Numerics, gauges=None) -> Response:
     motion, impacts, hit, flags = drop_motion(scene, numerics)
-    response = _respond(scene.board, motion, numerics, combine(scene_flags(scene), flags))
+    response = _respond(scene.board, motion, numerics, combine(scene_flags(scene), flags), gauges)
     return eqx.tree_at(
         lambda r: (r.impulse, r.housing, r.impacts), response, (hit.impact, hit, impacts), is_leaf=lambda x: x is None
     )
@@ -461,10 +651,12 @@ def _simulate(scene: Scene, numerics: Numerics) -> Response:
 _simulate_jit = eqx.filter_jit(_simulate)
 
 
-def _raise_eagerly(scene: Scene, numerics: Numerics, flags, impacts: Impacts | None, what: str):
+def _raise_eagerly(scene: Scene, numerics: Numerics, flags, impacts: Impacts | None, what: str,
+                   with_check: bool = True):
     """The compiled run found a problem: the eager checks name the field and its valid range."""
     check_scene(scene)
     housing_impact(scene, law=numerics.law)
+    _raise_if_window(scene.board, drop_motion(scene, numerics)[0], numerics, flags, what, with_check)
     if impacts is not None and int(impacts.ending) == Ending.SEARCH_GAVE_UP:
         n = int(impacts.count)
         raise ValueError(
@@ -485,17 +677,18 @@ def _raise_eagerly(scene: Scene, numerics: Numerics, flags, impacts: Impacts | N
     raise_if_flagged(flags & ~Flag.SOLVER_FAILED, what)
 
 
-def simulate(scene: Scene, numerics: Numerics | None = None) -> Response:
+def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Response:
     """Simulate one drop: the housing's corner impact (and with `Numerics(max_impacts=K)` the clattering impacts
     after it), the board's support jumps, its vibration, and the peak bending stress, strain and deflection, where
     and when.
 
     Concrete scenes are validated eagerly (`ValueError` naming the field and range); under `jit`/`vmap` problems
-    come back in `Response.flags` with NaN peaks.
+    come back in `Response.flags` with NaN peaks. With a `Plate` board, `gauges=((x, y), ...)` (m) reads strain
+    gauges (`Response.gauges`).
     """
     numerics = Numerics() if numerics is None else numerics
     require_single(scene, "simulate")
-    response = _simulate_jit(scene, numerics)
+    response = _simulate_jit(scene, numerics, _gauge_points(gauges))
     if is_concrete(scene) and int(response.flags):
         _raise_eagerly(scene, numerics, response.flags, response.impacts, "simulate")
     return response
@@ -513,6 +706,12 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     motion, _, _, impact_flags = drop_motion(scene, numerics)
     S = _setup(board, motion, numerics, with_check=False)
     mask = (S.k <= S.used).astype(float_dtype())
+    if isinstance(board, Plate):
+        modes = plate_modes(board, numerics.computed_modes)
+        values = _plate_searches(S, board, numerics, modes, quantities, jnp.stack([mask] * len(quantities))).value
+        flags = combine(scene_flags(scene), impact_flags, board.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
+                        flag_if(~jnp.all(jnp.isfinite(values)), Flag.NONFINITE_RESULT))
+        return jnp.where(flags != 0, jnp.nan, values), flags
     kinds = sorted({"deflection" if q == "deflection" else "curvature" for q in quantities})
     if grid_deflection and numerics.refine and "deflection" in kinds:
         coarse = dataclasses.replace(numerics, refine=False)
@@ -531,7 +730,7 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     scale = {"stress": board.youngs_modulus * board.thickness / 2, "strain": board.thickness / 2, "deflection": 1.0}
     values = jnp.stack([scale[q] * peaks[kinds.index("deflection" if q == "deflection" else "curvature")]
                         for q in quantities])
-    flags = combine(scene_flags(scene), impact_flags, board.flags(), flag_if(S.failed, Flag.SOLVER_FAILED),
+    flags = combine(scene_flags(scene), impact_flags, board.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
                     flag_if(~jnp.all(jnp.isfinite(values)), Flag.NONFINITE_RESULT))
     return jnp.where(flags != 0, jnp.nan, values), flags
 
@@ -548,7 +747,7 @@ def _peak(scene: Scene, numerics: Numerics | None, quantity: str):
     if is_concrete(scene) and int(flags):
         clatter = int(flags) & (Flag.PIVOTING_CONTACT | Flag.SOLVER_FAILED) and numerics.max_impacts > 1
         impacts = drop_motion(scene, numerics)[1] if clatter else None
-        _raise_eagerly(scene, numerics, flags, impacts, f"peak_{quantity}")
+        _raise_eagerly(scene, numerics, flags, impacts, f"peak_{quantity}", with_check=False)
     return value
 
 

@@ -320,3 +320,22 @@ def test_thesis_scene_says_its_units_are_not_physical(capsys):
     assert "nondimensional" in capsys.readouterr().out
     default = bd.Scene.default()
     assert not any("nondimensional" in n for n in bd.response_notes(default, bd.simulate(default)))
+
+
+def test_window_too_long_for_its_grid_is_flagged_and_its_bound_is_right():
+    import re
+
+    scene = bd.Scene.default()
+    long = bd.Numerics(window=0.1)  # mode 12 of the default board: 1057 grid points over ~9,000 periods
+    with pytest.raises(ValueError, match=r"simulate: Numerics\.window = 0\.1 s .*WINDOW_RANGE.*valid: window <= ") as err:
+        bd.simulate(scene, long)  # raised from the compiled result's flag, so jit and vmap callers see the bit
+    with pytest.raises(ValueError, match=r"peak_stress: Numerics\.window = 0\.1 s .*WINDOW_RANGE"):
+        bd.peak_stress(scene, long)
+    # The bound the message states is usable, and there the default grid finds the peak a grid as fine as the
+    # message asks for at 0.1 s finds.
+    bound = float(re.search(r"window <= ([0-9.e+-]+) s", str(err.value)).group(1)) * (1 - 1e-3)
+    needed = int(re.search(r"points_per_period >= (\d+)", str(err.value)).group(1))
+    assert needed >= 4 * 0.1 / bound
+    found = bd.simulate(scene, bd.Numerics(window=bound)).peak.stress
+    fine = bd.simulate(scene, bd.Numerics(window=bound, points_per_period=needed)).peak.stress
+    np.testing.assert_allclose(float(found), float(fine), rtol=1e-9)

@@ -1,0 +1,340 @@
+"""The plate board model: a Kirchhoff plate on edges and point mounts, by the Ritz method.
+
+The plate spans x in [0, L] from end A along the board and y in [-W/2, W/2] across it (perpendicular to the plane
+of motion), thickness h, D = E h^3 / (12 (1 - nu^2)). Its relative deflection u obeys
+D lap^2 u + rho h u_tt = -rho h [a_A(t) (1 - x/L) + a_B(t) x/L] with the edges' and mounts' conditions, so with
+modes normalised as the beam's (int int phi^2 dxi deta = 1/2, xi = x/L, eta = y/W) the modal equations are the
+beam's, q_k'' + 2 zeta omega_k q_k' + omega_k^2 q_k = p_kA a_A + p_kB a_B with p_kA = -2 int int (1 - xi) phi_k and
+p_kB = -2 int int xi phi_k: every closed form and solver of the beam applies unchanged.
+
+Ritz basis psi_ab = X_a(xi) Y_b(eta):
+- along x: sin(a pi xi) when both x-edges are simply supported (Levy type: the x-dependence is exact and the modes
+  of each a decouple; with nu = 0 and free sides the beam's modes are members of the basis, so the plate equals
+  the pinned-pinned beam to rounding), else Legendre polynomials times xi^p (1 - xi)^q (p, q = 0 free,
+  1 supported, 2 clamped), which meets the edges' geometric conditions;
+- across: Legendre polynomials times (1/2 + eta)^p (1/2 - eta)^q.
+Mounts (u = 0 at points, rotation free) are imposed exactly: the stiffness is projected onto the subspace of basis
+combinations that vanish at the mounts, so frequencies and modes are smooth (differentiable) in the mount positions.
+The basis integrals are constants (Gauss-Legendre quadrature in NumPy float64); the plate's size and material enter
+as scalars, so `jax.grad` reaches every float field.
+
+Surface strains on the face z = h/2 from the curvatures k_xx = u_xx, k_yy = u_yy, k_xy = u_xy: with
+c = (k_xx + k_yy) / 2 and r = sqrt(((k_xx - k_yy) / 2)^2 + k_xy^2) the principal strains are -(h/2) (c +- r), so the
+largest magnitude is (h/2) (|c| + r); the largest principal plane stress is E (h/2) (|c| / (1 - nu) + r / (1 + nu)).
+"""
+
+import functools
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._checks import Flag, Range, combine, float_dtype, flag_if, is_concrete
+
+EDGE_CODES = {"F": 0, "S": 1, "C": 2}  # the power of the distance to the edge in the Ritz basis
+"""Edge conditions in Leissa's letters: free, simply supported, clamped."""
+
+BASIS = (12, 12)
+"""Ritz basis functions (along x, across y)."""
+
+_QUADRATURE = 64  # Gauss-Legendre points per direction: exact for the polynomial products, 1e-16 for the sines
+
+
+def _legendre(xp, s, n: int):
+    """P_j(s), P_j'(s), P_j''(s) for j < n, stacked on a last axis (three-term recurrences)."""
+    one = xp.ones_like(s)
+    p, dp, ddp = [one, s], [0 * s, one], [0 * s, 0 * s]
+    for j in range(1, n - 1):
+        p.append(((2 * j + 1) * s * p[j] - j * p[j - 1]) / (j + 1))
+        dp.append(dp[j - 1] + (2 * j + 1) * p[j])
+        ddp.append(ddp[j - 1] + (2 * j + 1) * dp[j])
+    return tuple(xp.stack(v[:n], axis=-1) for v in (p, dp, ddp))
+
+
+def _basis_1d(xp, z, n: int, codes: tuple[int, int], sines: bool):
+    """Values and first and second derivatives (..., n) of the 1-D basis at z in [0, 1] (z = xi, or eta + 1/2)."""
+    z = z[..., None]
+    if sines:
+        k = math.pi * np.arange(1, n + 1)
+        sn, cs = xp.sin(k * z), xp.cos(k * z)
+        return sn, k * cs, -(k**2) * sn
+    p, q = codes
+    P, dP, ddP = _legendre(xp, 2 * z[..., 0] - 1, n)
+    dP, ddP = 2 * dP, 4 * ddP  # d/dz of P(2z - 1)
+    f = z**p * (1 - z) ** q
+    df = (p * z ** max(p - 1, 0) * (1 - z) ** q if p else 0.0) - (q * z**p * (1 - z) ** max(q - 1, 0) if q else 0.0)
+    ddf = (
+        (p * (p - 1) * z ** max(p - 2, 0) * (1 - z) ** q if p > 1 else 0.0)
+        - (2 * p * q * z ** max(p - 1, 0) * (1 - z) ** max(q - 1, 0) if p and q else 0.0)
+        + (q * (q - 1) * z**p * (1 - z) ** max(q - 2, 0) if q > 1 else 0.0)
+    )
+    return f * P, df * P + f * dP, ddf * P + 2 * df * dP + f * ddP
+
+
+class _Basis(eqx.Module):
+    """The Ritz basis of an edge set: per direction the 1-D functions and their constant integrals (float64)."""
+
+    nx: int = eqx.field(static=True)
+    ny: int = eqx.field(static=True)
+    x_codes: tuple = eqx.field(static=True)
+    y_codes: tuple = eqx.field(static=True)
+    sines: bool = eqx.field(static=True)
+
+    def x(self, xp, xi):
+        return _basis_1d(xp, xi, self.nx, self.x_codes, self.sines)
+
+    def y(self, xp, eta):
+        return _basis_1d(xp, eta + 0.5, self.ny, self.y_codes, False)
+
+
+@functools.lru_cache(maxsize=32)
+def _integrals(basis: _Basis):
+    """Per direction, in the M-orthonormal coordinates of that direction (Cholesky factor C, int X X = C C^T):
+    (C^-1 int X'' X'' C^-T, C^-1 int X' X' C^-T, C^-1 int X'' X C^-T, C^-T, moments), float64 NumPy. The moments
+    are int X, int xi X (x) and int Y (y)."""
+    z, w = np.polynomial.legendre.leggauss(_QUADRATURE)
+    z, w = (z + 1) / 2, w / 2
+    out = []
+    for values, weights, moments in ((basis.x(np, z), w, (w, w * z)), (basis.y(np, z - 0.5), w, (w,))):
+        X, dX, ddX = values
+        gram = lambda a, b: (a * weights[:, None]).T @ b  # noqa: E731
+        C = np.linalg.cholesky(gram(X, X))
+        Ci = np.linalg.inv(C)
+        T = lambda m: Ci @ m @ Ci.T  # noqa: E731
+        out.append((T(gram(ddX, ddX)), T(gram(dX, dX)), T(gram(ddX, X)), Ci.T, tuple(m @ X for m in moments)))
+    return tuple(out)
+
+
+@jax.custom_jvp
+def _eigh(A):
+    """Symmetric eigendecomposition whose derivative stays finite where eigenvalues repeat: pairs closer than
+    1e-10 of the spectrum's scale mix with weight 0 (any basis of a repeated eigenspace is then a stationary
+    choice; quantities that sum over that eigenspace get their exact derivative)."""
+    lam, V = jnp.linalg.eigh(A)
+    return lam, V
+
+
+@_eigh.defjvp
+def _eigh_jvp(primals, tangents):
+    (A,), (dA,) = primals, tangents
+    lam, V = _eigh(A)
+    dA = (dA + dA.T) / 2
+    gap = lam[None, :] - lam[:, None]
+    close = jnp.abs(gap) <= 1e-10 * jnp.max(jnp.abs(lam))
+    F = jnp.where(close, 0.0, 1.0 / jnp.where(close, 1.0, gap))
+    VdAV = V.T @ dA @ V
+    return (lam, V), (jnp.diagonal(VdAV), V @ (F * VdAV))
+
+
+class Plate(eqx.Module):
+    """Kirchhoff plate board (SI units): `length` along the board from end A to end B (in the plane of motion),
+    `width` across it, `thickness`; `edges` the conditions of the edges x = 0, y = -W/2, x = L, y = +W/2 in
+    Leissa's letters (S supported, C clamped, F free; "SFSF": held at both ends, free sides); `mounts` points
+    (x, y) (m, x from end A, y from the centre line) where the plate is held (u = 0, rotation free; screws,
+    standoffs), with peaks searched outside discs of `mount_radius` around them (the bending moments are singular
+    at a point support). Edges and mounts move with the housing; clamps rotate with it. `damping_ratio` is the
+    modal damping ratio, the same for every mode.
+    """
+
+    length: Float[Array, ""]
+    width: Float[Array, ""]
+    thickness: Float[Array, ""]
+    youngs_modulus: Float[Array, ""]
+    density: Float[Array, ""]
+    poisson_ratio: Float[Array, ""]
+    damping_ratio: Float[Array, ""]
+    mounts: Float[Array, "m 2"] | None
+    mount_radius: Float[Array, ""]
+    edges: str = eqx.field(static=True)
+    basis: tuple = eqx.field(static=True)
+
+    RANGES = {
+        "length": (Range(1e-4, 100.0, unit="m"), Flag.NONPOSITIVE_SIZE),
+        "width": (Range(1e-4, 100.0, unit="m"), Flag.NONPOSITIVE_SIZE),
+        "thickness": (Range(1e-6, 10.0, unit="m"), Flag.NONPOSITIVE_SIZE),
+        "youngs_modulus": (Range(1.0, 1e13, unit="Pa"), Flag.NONPOSITIVE_SIZE),
+        "density": (Range(1e-3, 1e6, unit="kg/m^3"), Flag.NONPOSITIVE_SIZE),
+        "poisson_ratio": (Range(0.0, 0.5, hi_open=True), Flag.NONPOSITIVE_SIZE),
+        "damping_ratio": (Range(0.0, 1.0, hi_open=True), Flag.DAMPING_RANGE),
+        "mount_radius": (Range(0.0, 1.0, lo_open=True, unit="m"), Flag.NONPOSITIVE_SIZE),
+    }
+
+    def __init__(self, length=0.132, width=0.077, thickness=1.0e-3, youngs_modulus=22e9, density=1900.0,
+                 poisson_ratio=0.2, damping_ratio=0.0, edges="SFSF", mounts=None, mount_radius=2.5e-3,
+                 basis=BASIS):
+        from ._scene import _init_fields
+
+        if not (isinstance(edges, str) and len(edges) == 4 and set(edges) <= set(EDGE_CODES)):
+            raise ValueError(f"Plate.edges = {edges!r}; valid: four letters of S (supported), C (clamped), F (free) "
+                             "for the edges x = 0, y = -W/2, x = L, y = +W/2, e.g. 'SFSF', 'SSSS', 'FFFF'")
+        if not (isinstance(basis, tuple) and len(basis) == 2 and all(isinstance(b, int) and 2 <= b <= 40
+                                                                     for b in basis)):
+            raise ValueError(f"Plate.basis = {basis!r}; valid: (nx, ny), integers in [2, 40]")
+        self.edges, self.basis = edges, basis
+        _init_fields(self, dict(length=length, width=width, thickness=thickness, youngs_modulus=youngs_modulus,
+                                density=density, poisson_ratio=poisson_ratio, damping_ratio=damping_ratio,
+                                mount_radius=mount_radius))
+        if mounts is None:
+            self.mounts = None
+        else:
+            from ._checks import as_float
+
+            self.mounts = as_float(mounts, "Plate.mounts", Range(unit="m"))
+            if self.mounts.ndim != 2 or self.mounts.shape[-1] != 2 or self.mounts.shape[0] < 1:
+                raise ValueError(f"Plate.mounts has shape {self.mounts.shape}; valid: ((x, y), ...), at least one")
+
+    def __check_init__(self):
+        from ._scene import _check_ranges
+
+        _check_ranges(self)
+        if self.mounts is not None and is_concrete(self):
+            m = np.asarray(self.mounts)
+            L, W = float(self.length), float(self.width)
+            if not (np.all((m[:, 0] >= 0) & (m[:, 0] <= L)) and np.all(np.abs(m[:, 1]) <= W / 2)):
+                raise ValueError(f"Plate.mounts = {m.tolist()} m; valid: 0 <= x <= length = {L:g} m and "
+                                 f"|y| <= width/2 = {W / 2:g} m")
+        if self.edges == "FFFF" and (self.mounts is None or self.mounts.shape[0] < 3):
+            raise ValueError("a plate with free edges (Plate.edges = 'FFFF') needs at least 3 mounts not on one "
+                             "line: it would move as a rigid body")
+
+    @property
+    def bending_stiffness(self) -> Float[Array, ""]:
+        """D = E h^3 / (12 (1 - nu^2)), N m."""
+        return self.youngs_modulus * self.thickness**3 / (12.0 * (1.0 - self.poisson_ratio**2))
+
+    def flags(self):
+        """Traceable checks of this plate (int32 mask of `Flag`)."""
+        from ._scene import _range_flags
+
+        flags = _range_flags(self)
+        if self.mounts is not None:
+            inside = (self.mounts[:, 0] >= 0) & (self.mounts[:, 0] <= self.length) & \
+                     (jnp.abs(self.mounts[:, 1]) <= self.width / 2)
+            flags = combine(flags, flag_if(~jnp.all(inside), Flag.BOARD_OUTSIDE_HOUSING))
+        return flags
+
+
+def _basis_of(plate: Plate) -> _Basis:
+    e = plate.edges
+    sines = e[0] == e[2] == "S"
+    return _Basis(plate.basis[0], plate.basis[1], (EDGE_CODES[e[0]], EDGE_CODES[e[2]]),
+                  (EDGE_CODES[e[1]], EDGE_CODES[e[3]]), sines)
+
+
+def _eigen(plate: Plate, n_modes: int):
+    """(omega^2 (n,), modal coefficients in the basis (nx * ny, n)) of the lowest n modes, normalised so that
+    int int phi^2 dxi deta = 1/2. Levy plates (sines along x, no mounts) solve one small problem per x-wave number,
+    so the modes stay separated where frequencies of different wave numbers coincide (a square plate)."""
+    basis = _basis_of(plate)
+    (X2, X1, Xc, XT, _), (Y2, Y1, Yc, YT, _) = (tuple(jnp.asarray(v, dtype=float_dtype()) if isinstance(v, np.ndarray)
+                                                       else v for v in d) for d in _integrals(basis))
+    L, W, nu = plate.length, plate.width, plate.poisson_ratio
+    n_basis = basis.nx * basis.ny
+    if n_modes > n_basis:
+        raise ValueError(f"{n_modes} modes asked of a plate with a Ritz basis of {n_basis} functions "
+                         f"(Plate.basis = {plate.basis}); valid: n_modes <= {n_basis}")
+    scale = plate.bending_stiffness / (plate.density * plate.thickness)
+    if basis.sines and plate.mounts is None:
+        d = lambda m: jnp.diagonal(m)[:, None, None]  # noqa: E731 - the x-integrals are diagonal for sines
+        blocks = (d(X2) * jnp.eye(basis.ny, dtype=X2.dtype) / L**4 + Y2 / W**4 + nu * d(Xc) * (Yc + Yc.T) / (L * W) ** 2
+                  + 2 * (1 - nu) * d(X1) * Y1 / (L * W) ** 2)
+        lam, V = jax.vmap(_eigh)((blocks + jnp.swapaxes(blocks, 1, 2)) / 2)  # (nx, ny), (nx, ny, ny)
+        order = jnp.argsort(lam.ravel())[:n_modes]
+        a, j = order // basis.ny, order % basis.ny
+        cols = (YT @ V)[a, :, j]  # (n, ny)
+        coeffs = jax.nn.one_hot(a, basis.nx, dtype=lam.dtype)[:, :, None] * (jnp.diagonal(XT)[a][:, None, None]
+                                                                              * cols[:, None, :])
+        return lam.ravel()[order] * scale, coeffs.reshape(n_modes, n_basis).T / math.sqrt(2.0)
+    Ix, Iy = jnp.eye(basis.nx, dtype=X2.dtype), jnp.eye(basis.ny, dtype=X2.dtype)
+    A = (jnp.kron(X2, Iy) / L**4 + jnp.kron(Ix, Y2) / W**4
+         + nu * (jnp.kron(Xc, Yc.T) + jnp.kron(Xc.T, Yc)) / (L * W) ** 2 + 2 * (1 - nu) * jnp.kron(X1, Y1) / (L * W) ** 2)
+    A = (A + A.T) / 2
+    if plate.mounts is not None:
+        G = _values(plate, plate.mounts[:, 0] / L, plate.mounts[:, 1] / W) @ jnp.kron(XT, YT)  # (m, n_basis)
+        P = jnp.eye(n_basis, dtype=A.dtype) - G.T @ jnp.linalg.solve(G @ G.T, G)
+        # The constrained directions move above the spectrum (a shift larger than every eigenvalue).
+        A = P @ A @ P + (2 * jnp.trace(A)) * (jnp.eye(n_basis, dtype=A.dtype) - P)
+        A = (A + A.T) / 2
+    lam, V = _eigh(A)
+    return lam[:n_modes] * scale, jnp.kron(XT, YT) @ V[:, :n_modes] / math.sqrt(2.0)
+
+
+def _values(plate: Plate, xi, eta, derivatives: bool = False):
+    """Basis products at points (xi, eta) (normalised coordinates; shapes broadcast): (..., nx * ny) values, or
+    with `derivatives` (psi, psi_xx, psi_yy, psi_xy) in physical units (1/m^2)."""
+    basis = _basis_of(plate)
+    X = basis.x(jnp, jnp.asarray(xi, dtype=float_dtype()))
+    Y = basis.y(jnp, jnp.asarray(eta, dtype=float_dtype()))
+    outer = lambda a, b: (a[..., :, None] * b[..., None, :]).reshape(a.shape[:-1] + (-1,))  # noqa: E731
+    if not derivatives:
+        return outer(X[0], Y[0])
+    L, W = plate.length, plate.width
+    return (outer(X[0], Y[0]), outer(X[2], Y[0]) / L**2, outer(X[0], Y[2]) / W**2, outer(X[1], Y[1]) / (L * W))
+
+
+class PlateModes(eqx.Module):
+    """The lowest modes of a plate: `omega2` (rad^2/s^2) and Ritz coefficients (nx * ny, n); evaluates shapes."""
+
+    plate: Plate
+    omega2: Float[Array, " n"]
+    coeffs: Float[Array, "b n"]
+
+    def shapes(self, x, y, derivatives: bool = True):
+        """Mode shapes at points (x, y) (m; shapes broadcast): (phi, phi_xx, phi_yy, phi_xy), each (..., n), or
+        phi alone without `derivatives`."""
+        values = _values(self.plate, jnp.asarray(x) / self.plate.length, jnp.asarray(y) / self.plate.width,
+                         derivatives=derivatives)
+        return tuple(v @ self.coeffs for v in values) if derivatives else values @ self.coeffs
+
+    def frequencies(self) -> Float[Array, " n"]:
+        """omega_k, rad/s."""
+        return jnp.sqrt(jnp.maximum(self.omega2, jnp.finfo(self.omega2.dtype).tiny ** 0.25))
+
+
+def plate_modes(plate: Plate, n_modes: int) -> PlateModes:
+    """The lowest n modes of a plate (one eigensolve; see `PlateModes`)."""
+    return PlateModes(plate, *_eigen(plate, n_modes))
+
+
+def plate_frequencies(plate: Plate, n_modes: int) -> Float[Array, " n"]:
+    """Natural frequencies omega_k (rad/s) of the lowest n modes."""
+    return plate_modes(plate, n_modes).frequencies()
+
+
+def plate_participation(plate: Plate, n_modes: int) -> Float[Array, "n 2"]:
+    """Modal forcing per unit support acceleration (columns p_A, p_B), as the beam's."""
+    (_, _, _, _, (mx, mxi)), (_, _, _, _, (my,)) = _integrals(_basis_of(plate))
+    coeffs = _eigen(plate, n_modes)[1]
+    moments = jnp.asarray(np.stack([np.kron(mx - mxi, my), np.kron(mxi, my)], axis=-1), dtype=float_dtype())
+    return -2.0 * coeffs.T @ moments
+
+
+def surface_strain(plate: Plate, kxx, kyy, kxy):
+    """Largest principal surface strain magnitude from the curvatures (broadcast)."""
+    c, r = _centre_radius(kxx, kyy, kxy)
+    return plate.thickness / 2 * (jnp.abs(c) + r)
+
+
+def surface_stress(plate: Plate, kxx, kyy, kxy):
+    """Largest principal plane-stress magnitude (Pa) on the faces from the curvatures (broadcast)."""
+    c, r = _centre_radius(kxx, kyy, kxy)
+    nu = plate.poisson_ratio
+    return plate.youngs_modulus * plate.thickness / 2 * (jnp.abs(c) / (1 - nu) + r / (1 + nu))
+
+
+def _centre_radius(kxx, kyy, kxy):
+    half = (kxx - kyy) / 2
+    r2 = half * half + kxy * kxy
+    # sqrt has an infinite derivative at 0 (equal principal curvatures); the gradient there is taken as 0.
+    safe = r2 > 0
+    return (kxx + kyy) / 2, jnp.where(safe, jnp.sqrt(jnp.where(safe, r2, 1.0)), 0.0)
+
+
+def principal_strains(plate: Plate, kxx, kyy, kxy):
+    """(e_1, e_2) on the face z = +h/2 (e = -z k), e_1 >= e_2, from the curvatures."""
+    c, r = _centre_radius(kxx, kyy, kxy)
+    z = plate.thickness / 2
+    return -z * c + z * r, -z * c - z * r

@@ -1,0 +1,211 @@
+"""Plates: frequencies against exact formulas, published tables and an independent Ritz model written here; the
+SFSF plate with nu = 0 against the pinned beam; a transient against an independent modal solution; gradients
+against central differences, on a square plate whose frequencies repeat and in the mount positions."""
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+from scipy.linalg import eigh
+
+import beamdrop_jax as bd
+
+E, RHO, H = 1e9, 1000.0, 0.01
+
+
+def lam(plate, n):
+    """Leissa's frequency parameter omega L^2 sqrt(rho h / D) of the lowest n modes."""
+    D = float(plate.bending_stiffness)
+    return np.asarray(bd.natural_frequencies(plate, n)) * float(plate.length) ** 2 * math.sqrt(RHO * H / D)
+
+
+def test_ssss_frequencies_are_the_exact_formula():
+    L, W = 0.3, 0.2
+    plate = bd.Plate(length=L, width=W, thickness=H, youngs_modulus=E, density=RHO, poisson_ratio=0.3, edges="SSSS",
+                     basis=(12, 16))  # sines along x are exact; polynomials across converge to 1e-9 here
+    D = float(plate.bending_stiffness)
+    exact = sorted(math.pi**2 * ((m / L) ** 2 + (n / W) ** 2) * math.sqrt(D / (RHO * H))
+                   for m in range(1, 13) for n in range(1, 10))[:8]
+    np.testing.assert_allclose(np.asarray(bd.natural_frequencies(plate, 8)), exact, rtol=1e-9)
+
+
+def test_square_sfsf_plate_matches_leissa():
+    # Leissa, Vibration of Plates (NASA SP-160, 1969): square plate, two opposite edges simply supported, the
+    # others free, nu = 0.3.
+    plate = bd.Plate(length=1.0, width=1.0, thickness=H, youngs_modulus=E, density=RHO, poisson_ratio=0.3,
+                     edges="SFSF")
+    np.testing.assert_allclose(lam(plate, 6), [9.631, 16.135, 36.726, 38.945, 46.738, 70.740], rtol=2e-4)
+
+
+def _corner_supported_reference(nu, n_poly=10, n=4):
+    """An independent Ritz model of a square plate (side 1, D = rho h = 1) with free edges on point supports at its
+    corners: a Chebyshev basis T_i(2x - 1) T_j(2y - 1), the supports as stiff springs (1e9), scipy's generalised
+    eigh."""
+    C = np.polynomial.chebyshev
+    z, w = np.polynomial.legendre.leggauss(40)
+    s, w = z, w / 2  # s = 2x - 1 on the quadrature points of [0, 1]
+    eye = np.eye(n_poly)
+    V = np.stack([C.chebval(s, e) for e in eye], axis=1)
+    dV = np.stack([2 * C.chebval(s, C.chebder(e)) for e in eye], axis=1)
+    ddV = np.stack([4 * C.chebval(s, C.chebder(e, 2)) for e in eye], axis=1)
+    g = lambda a, b: (a * w[:, None]).T @ b  # noqa: E731
+    I00, I11, I22, I20 = g(V, V), g(dV, dV), g(ddV, ddV), g(ddV, V)
+    K = (np.kron(I22, I00) + np.kron(I00, I22) + nu * (np.kron(I20, I20.T) + np.kron(I20.T, I20))
+         + 2 * (1 - nu) * np.kron(I11, I11))
+    M = np.kron(I00, I00)
+    ends = np.stack([C.chebval(np.array([-1.0, 1.0]), e) for e in eye], axis=1)
+    for a in ends:
+        for b in ends:
+            row = np.kron(a, b)
+            K = K + 1e9 * np.outer(row, row)
+    return np.sqrt(eigh(K, M, eigvals_only=True)[:n])
+
+
+def test_corner_supported_plate_matches_published_values_and_an_independent_model():
+    corners = ((0.0, -0.5), (1.0, -0.5), (0.0, 0.5), (1.0, 0.5))
+    plate = bd.Plate(length=1.0, width=1.0, thickness=H, youngs_modulus=E, density=RHO, poisson_ratio=0.3,
+                     edges="FFFF", mounts=corners, basis=(12, 12))
+    found = lam(plate, 4)
+    # Leissa (1969), square plate point-supported at the four corners, nu = 0.3: 7.12, 15.77, 15.77, 19.60.
+    np.testing.assert_allclose(found, [7.12, 15.77, 15.77, 19.60], rtol=2e-3)
+    np.testing.assert_allclose(found, _corner_supported_reference(0.3), rtol=2e-4)
+
+
+def _pair(nu):
+    board = bd.Board(length=0.1, width=0.05, thickness=1e-3, youngs_modulus=22e9, density=1900.0)
+    plate = bd.Plate(length=0.1, width=0.05, thickness=1e-3, youngs_modulus=22e9, density=1900.0,
+                     poisson_ratio=nu, edges="SFSF")
+    return board, plate
+
+
+def test_sfsf_plate_with_nu_zero_is_the_pinned_beam():
+    board, plate = _pair(0.0)
+    f_beam = np.asarray(bd.natural_frequencies(board, 4))
+    f_plate = np.asarray(bd.natural_frequencies(plate, 30))
+    n = int(np.sum(f_plate <= f_beam[-1] * (1 + 1e-9)))  # the plate modes up to the beam's fourth
+    p_plate = np.asarray(bd._beam.support_participation(plate, n))
+    moving = np.abs(p_plate).sum(axis=1) > 1e-12
+    assert moving.sum() == 4  # only the modes uniform across the width take part
+    np.testing.assert_allclose(f_plate[:n][moving], f_beam, rtol=1e-12)
+    np.testing.assert_allclose(np.abs(p_plate[moving]), np.abs(np.asarray(bd._beam.support_participation(board, 4))),
+                               rtol=1e-12)
+    motion = bd.HalfSine(1.0, 0.5, 5e-4)
+    beam = bd.board_response(board, motion, bd.Numerics(n_modes=4)).peak
+    flat = bd.board_response(plate, motion, bd.Numerics(n_modes=n)).peak
+    for name in ("stress", "strain", "deflection"):
+        np.testing.assert_allclose(float(getattr(flat, name)), float(getattr(beam, name)), rtol=1e-9, err_msg=name)
+    for name in ("x", "t", "deflection_x", "deflection_t"):  # a flat maximum: located to the search's resolution
+        np.testing.assert_allclose(float(getattr(flat, name)), float(getattr(beam, name)), rtol=1e-5, err_msg=name)
+
+
+def test_poisson_ratio_raises_an_sfsf_plates_peak_at_its_free_edges():
+    board, plate = _pair(0.3)
+    motion = bd.HalfSine(1.0, 0.5, 5e-4)
+    beam = bd.board_response(board, motion).peak
+    res = bd.board_response(plate, motion)
+    assert bool(res.converged)
+    # Anticlastic bending: the free sides curl, the edge's strain exceeds the beam's by about nu^2-order terms
+    # plus the stiffer plate modulus E / (1 - nu^2) in the stress.
+    assert abs(float(res.peak.y)) == pytest.approx(0.025)
+    assert 1.0 < float(res.peak.stress) / float(beam.stress) < 1.0 / (1 - 0.3**2)
+
+
+def _ssss_reference(L, W, h, E_, rho, nu, dv, tau, n_modes, x, y, t):
+    """Principal surface strain at (x, y) over times t of an SSSS plate whose supports move by a half-sine of
+    velocity change dv (both ends): exact modes sin(m pi x / L) sin(n pi (y / W + 1/2)), modal equations solved by
+    scipy's solve_ivp."""
+    D = E_ * h**3 / (12 * (1 - nu**2))
+    modes = sorted(((math.pi**2 * ((m / L) ** 2 + (n / W) ** 2) * math.sqrt(D / (rho * h)), m, n)
+                    for m in range(1, 20) for n in range(1, 20)))[:n_modes]
+    kxx = kyy = kxy = 0.0
+    for omega, m, n in modes:
+        shape = math.sqrt(2.0)
+        p = -2 * shape * (1 / (m * math.pi)) * (1 - (-1) ** n) / (n * math.pi)  # p_A
+        p += -2 * shape * (-((-1) ** m) / (m * math.pi)) * (1 - (-1) ** n) / (n * math.pi)  # p_B
+        a = lambda s: np.where(s < tau, math.pi * dv / (2 * tau) * np.sin(math.pi * s / tau), 0.0)  # noqa: E731
+        sol = solve_ivp(lambda s, q: [q[1], p * a(s) - omega**2 * q[0]], (0, t[-1]), [0.0, 0.0], t_eval=t,
+                        rtol=1e-11, atol=1e-16, method="DOP853", max_step=tau / 20)
+        q = sol.y[0]
+        km, kn = m * math.pi / L, n * math.pi / W
+        sx, cx = math.sin(km * x), math.cos(km * x)
+        sy, cy = math.sin(kn * (y + W / 2)), math.cos(kn * (y + W / 2))
+        kxx = kxx - shape * km**2 * sx * sy * q
+        kyy = kyy - shape * kn**2 * sx * sy * q
+        kxy = kxy + shape * km * kn * cx * cy * q
+    c, r = (kxx + kyy) / 2, np.sqrt(((kxx - kyy) / 2) ** 2 + kxy**2)
+    return h / 2 * (np.abs(c) + r)
+
+
+def test_ssss_gauge_history_matches_an_independent_modal_solution():
+    L, W, h, nu = 0.12, 0.08, 1e-3, 0.25
+    plate = bd.Plate(length=L, width=W, thickness=h, youngs_modulus=22e9, density=1900.0, poisson_ratio=nu,
+                     edges="SSSS", basis=(12, 16))
+    motion = bd.HalfSine(2.0, 2.0, 3e-4)
+    gauge = (0.4 * L, 0.1 * W)
+    res = bd.board_response(plate, motion, bd.Numerics(n_modes=8), gauges=(gauge,))
+    t = np.asarray(res.gauges.t)
+    ref = _ssss_reference(L, W, h, 22e9, 1900.0, nu, 2.0, 3e-4, 8, *gauge, t)
+    np.testing.assert_allclose(np.asarray(res.gauges.strain[0]), ref, rtol=0, atol=1e-6 * ref.max())
+    dense_t = np.linspace(0, t[-1], 20001)
+    dense = _ssss_reference(L, W, h, 22e9, 1900.0, nu, 2.0, 3e-4, 8, *gauge, dense_t)
+    np.testing.assert_allclose(float(res.gauges.peak_strain[0]), dense.max(), rtol=1e-5)
+
+
+def test_plate_gradients_match_central_differences_on_a_square_plate_with_repeated_frequencies():
+    plate = bd.Plate(length=0.1, width=0.1, thickness=1e-3, youngs_modulus=22e9, density=1900.0, poisson_ratio=0.3,
+                     edges="SSSS", basis=(6, 12), damping_ratio=0.05)
+    f = np.asarray(bd.natural_frequencies(plate, 3))
+    assert f[2] == pytest.approx(f[1], rel=1e-12)  # modes (1, 2) and (2, 1)
+    # Damped, so that the first peak wins clearly (an undamped plate's later peaks nearly tie with it). At the
+    # square's centre the principal curvatures are equal, where the peak has a kink in (L, W): the gradient there
+    # is the central one, which the central difference measures.
+    motion = bd.HalfSine(1.0, 1.0, 4e-4)
+    numerics = bd.Numerics(n_modes=6)
+
+    def peak(length, width):
+        return bd.board_response(eqx.tree_at(lambda p: (p.length, p.width), plate, (length, width)), motion,
+                                 numerics).peak.stress
+
+    grad = jax.grad(peak, argnums=(0, 1))(plate.length, plate.width)
+    assert all(np.isfinite(float(g)) for g in grad)
+    for i, step in enumerate((1e-6, 1e-6)):
+        args = [plate.length, plate.width]
+        up = list(args); up[i] = args[i] + step
+        down = list(args); down[i] = args[i] - step
+        fd = (float(peak(*up)) - float(peak(*down))) / (2 * step)
+        np.testing.assert_allclose(float(grad[i]), fd, rtol=1e-3)  # the search's resolution over 2e-6 m
+
+
+def test_mount_position_gradients_match_central_differences():
+    # Not symmetric: symmetric mounts make mirror-image peaks tie, where the peak has a kink, not a gradient.
+    mounts = jnp.array([(0.005, -0.0335), (0.127, -0.03), (0.01, 0.0335), (0.12, 0.0335)])
+    plate = bd.Plate(length=0.132, width=0.077, thickness=1e-3, youngs_modulus=22e9, density=1900.0,
+                     poisson_ratio=0.2, edges="FFFF", mounts=mounts, basis=(8, 6))
+    motion = bd.HalfSine(1.0, 1.0, 5e-4)
+    numerics = bd.Numerics(n_modes=6)
+
+    def peak(m):
+        return bd.board_response(eqx.tree_at(lambda p: p.mounts, plate, m), motion, numerics).peak.strain
+
+    grad = np.asarray(jax.grad(peak)(mounts))
+    step = 1e-5
+    for i, j in [(0, 0), (0, 1), (3, 1)]:
+        fd = (float(peak(mounts.at[i, j].add(step))) - float(peak(mounts.at[i, j].add(-step)))) / (2 * step)
+        np.testing.assert_allclose(grad[i, j], fd, rtol=1e-3)
+
+
+def test_plate_inputs_are_checked_by_name():
+    with pytest.raises(ValueError, match=r"Plate\.edges = 'SFX'"):
+        bd.Plate(edges="SFX")
+    with pytest.raises(ValueError, match=r"Plate\.poisson_ratio"):
+        bd.Plate(poisson_ratio=0.6)
+    with pytest.raises(ValueError, match=r"Plate\.mounts .* valid: 0 <= x <= length"):
+        bd.Plate(edges="FFFF", mounts=((0.2, 0.0), (0.0, 0.0), (0.1, 0.03)))
+    with pytest.raises(ValueError, match="at least 3 mounts"):
+        bd.Plate(edges="FFFF", mounts=((0.0, 0.0),))
+    with pytest.raises(ValueError, match="gauges"):
+        bd.board_response(bd.Board(), bd.HalfSine(1.0, 1.0, 5e-4), gauges=((0.05, 0.0),))
