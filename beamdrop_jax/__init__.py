@@ -48,6 +48,8 @@ from ._simulate import (
     peak_deflection as peak_deflection,
     peak_strain as peak_strain,
     peak_stress as peak_stress,
+    plate_strain_map as plate_strain_map,
+    StrainMap as StrainMap,
     response_fields as response_fields,
     response_notes as response_notes,
     simulate as simulate,
@@ -99,6 +101,7 @@ from ._plots import (
     plot_scene as plot_scene,
     plot_montecarlo as plot_montecarlo,
     plot_placement as plot_placement,
+    plot_plate_strain as plot_plate_strain,
     plot_stability as plot_stability,
     plot_stress_map as plot_stress_map,
 )

@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from ._checks import float_dtype
 from ._checks import Flag
-from ._scene import Scene, check_scene
+from ._scene import Scene, check_scene, require_beam
 from ._simulate import Numerics, _scene_peaks
 from ._superposition import superposes, superposition_table, table_numerics, table_peaks
 
@@ -316,6 +316,7 @@ def montecarlo(
       10,000 drops of five scenes, default numerics; stress and strain are always refined).
       Superposed deflections are always refined.
     """
+    require_beam(scene, "bd.montecarlo")
     if not (isinstance(n, (int, np.integer)) and n >= 1):
         raise ValueError(f"n = {n!r}; valid: an int >= 1")
     n = int(n)

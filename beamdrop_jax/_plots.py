@@ -446,3 +446,51 @@ def plot_stability(study: dict):
     ax.set_title("Approaching buckling: f1 -> 0, the peak grows", fontsize=10)
     ax.grid(True, alpha=0.3)
     return fig
+
+
+def plot_plate_strain(strain_map, response, plate, *, axes=None):
+    """Left: the largest principal surface strain over a plate at the peak time (microstrain), the mounts and
+    their discs (where peaks are not searched), the peak and the gauges marked. Right: each gauge's principal
+    strain history with its peak."""
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle
+
+    if axes is None:
+        fig, axes = plt.subplots(1, 2, figsize=(12.0, 4.2), layout="constrained", width_ratios=(1.5, 1.0))
+    ax, hx = axes
+    fig = ax.figure
+    x, y = np.asarray(strain_map.x) * 1e3, np.asarray(strain_map.y) * 1e3
+    mesh = ax.pcolormesh(x, y, np.asarray(strain_map.strain).T * 1e6, shading="gouraud", cmap="magma")
+    fig.colorbar(mesh, ax=ax, label="largest principal surface strain (microstrain)")
+    if plate.mounts is not None:
+        r = float(plate.mount_radius) * 1e3
+        for mx, my in np.asarray(plate.mounts) * 1e3:
+            ax.add_patch(Circle((mx, my), r, facecolor="white", edgecolor="tab:cyan", lw=1.5))
+            ax.plot(mx, my, "+", color="tab:cyan", ms=8)
+        ax.plot([], [], "+", color="tab:cyan", label=f"mounts (discs r = {r:g} mm not searched)")
+    peak = response.peak
+    ax.plot(float(peak.x) * 1e3, float(peak.y) * 1e3, "*", ms=16, mfc="yellow", mec="k",
+            label=f"peak {float(peak.strain) * 1e6:.0f} microstrain at t = {float(peak.t) * 1e3:.3g} ms")
+    gauges = response.gauges
+    if gauges is not None:
+        ax.plot(np.asarray(gauges.x) * 1e3, np.asarray(gauges.y) * 1e3, "s", ms=7, mfc="none", mec="tab:green",
+                mew=2, label="gauges")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x from end A (mm)")
+    ax.set_ylabel("y across the width (mm)")
+    ax.set_title(f"Surface strain at t = {float(strain_map.t) * 1e3:.3g} ms")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.18), fontsize=8, ncol=2)
+    if gauges is not None:
+        t = np.asarray(gauges.t) * 1e3
+        for i in range(len(np.asarray(gauges.x))):
+            label = f"gauge ({float(gauges.x[i]) * 1e3:.1f}, {float(gauges.y[i]) * 1e3:.1f}) mm"
+            line, = hx.plot(t, np.asarray(gauges.strain[i]) * 1e6, lw=1.2, label=label)
+            hx.plot(float(gauges.peak_time[i]) * 1e3, float(gauges.peak_strain[i]) * 1e6, "o", color=line.get_color())
+        hx.set_xlabel("t from the impact (ms)")
+        hx.set_ylabel("largest principal strain (microstrain)")
+        hx.set_title("Gauge histories")
+        hx.grid(alpha=0.3)
+        hx.legend(fontsize=8)
+    else:
+        hx.set_axis_off()
+    return fig

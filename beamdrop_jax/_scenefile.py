@@ -1,6 +1,7 @@
 """Scene files: strict TOML in, TOML out.
 
-A scene file has the sections `[housing]`, `[board]`, `[placement]`, `[drop]` and `[contact]`, in SI units, with
+A scene file has the sections `[housing]`, `[board]` (a beam; or `[plate]` for a `Plate`, with `edges` in
+Leissa's letters and `mounts` a list of [x, y] pairs in m), `[placement]`, `[drop]` and `[contact]`, in SI units, with
 angles in degrees under keys ending in `_deg` (`orientation_deg`, `angle_deg`). It either gives every required key
 of every section, or names the embedded scene it changes with a top-level `extends = "default"` and gives only
 what differs. Keys that may always be left out, because leaving them out means something physical rather than
@@ -22,6 +23,7 @@ import numpy as np
 
 from ._beam import ENDS
 from ._checks import DEG, Range, as_float
+from ._plate import Plate
 from ._scene import MAX_ANGLE, SECTIONS, Scene
 
 ANGLE_KEYS = {("placement", "angle"), ("drop", "orientation")}
@@ -32,7 +34,14 @@ OPTIONAL_KEYS = {
     ("drop", "spin"),
     ("drop", "horizontal_speed"),
     ("board", "ends"),
+    ("plate", "damping_ratio"),
+    ("plate", "poisson_ratio"),
+    ("plate", "mounts"),
+    ("plate", "mount_radius"),
 }
+# `[plate]` stands where `[board]` would: the board is then a `Plate`.
+FILE_SECTIONS = {**SECTIONS, "plate": Plate}
+PLATE_EXTRA_KEYS = ("edges", "mounts")
 # Keys whose value is a name from a list (the others are numbers).
 CHOICE_KEYS = {("board", "ends"): ENDS}
 _DEG_RANGE = Range(-MAX_ANGLE / DEG, MAX_ANGLE / DEG, unit="deg")
@@ -57,8 +66,8 @@ def _scene_path(path) -> Path:
 
 def file_keys(section: str) -> list[str]:
     """The keys a scene file's `[section]` takes (angles under `_deg`)."""
-    return [f"{name}_deg" if (section, name) in ANGLE_KEYS else name for name in SECTIONS[section].RANGES] + [
-        name for (s, name) in CHOICE_KEYS if s == section]
+    return [f"{name}_deg" if (section, name) in ANGLE_KEYS else name for name in FILE_SECTIONS[section].RANGES] + [
+        name for (s, name) in CHOICE_KEYS if s == section] + (list(PLATE_EXTRA_KEYS) if section == "plate" else [])
 
 
 def _read_toml(path: Path, source: str) -> dict:
@@ -83,10 +92,20 @@ def _section(section: str, table, source: str):
     where = f"{source}: [{section}]"
     if not isinstance(table, dict):
         raise ValueError(f"{where} must be a table of keys, got {table!r}")
-    cls = SECTIONS[section]
+    cls = FILE_SECTIONS[section]
     keys = file_keys(section)
     kwargs = {}
     for key, value in table.items():
+        if section == "plate" and key == "edges":
+            if not isinstance(value, str):
+                raise ValueError(f"{where} edges = {value!r}: must be a string of four letters S, C or F")
+            kwargs[key] = value
+            continue
+        if section == "plate" and key == "mounts":
+            if not (isinstance(value, list) and value and all(isinstance(p, list) and len(p) == 2 for p in value)):
+                raise ValueError(f"{where} mounts = {value!r}: must be a list of [x, y] pairs in m")
+            kwargs[key] = as_float(value, f"{where} mounts", Range(unit="m"))
+            continue
         if (section, key) in ANGLE_KEYS:
             raise ValueError(f"{where} {key} = {value!r}: angles in scene files are in degrees under "
                              f"'{key}_deg' (a bare '{key}' would be read as radians)")
@@ -132,15 +151,20 @@ def scene_from_dict(data: dict, source: str = "scene") -> Scene:
     """Build a scene from a TOML-shaped dict (see the module notes); `source` names it in errors."""
     data = dict(data)
     extends = data.pop("extends", None)
-    unknown = [k for k in data if k not in SECTIONS]
+    unknown = [k for k in data if k not in FILE_SECTIONS]
     if unknown:
-        raise ValueError(f"{source}: unknown section or key {unknown[0]!r}; {_suggest(unknown[0], SECTIONS)}"
-                         f"valid sections: {', '.join(SECTIONS)} (and a top-level extends = \"SCENE\")")
+        raise ValueError(f"{source}: unknown section or key {unknown[0]!r}; {_suggest(unknown[0], FILE_SECTIONS)}"
+                         f"valid sections: {', '.join(FILE_SECTIONS)} (and a top-level extends = \"SCENE\")")
+    if "board" in data and "plate" in data:
+        raise ValueError(f"{source}: give [board] (a beam) or [plate], not both")
     if extends is not None:
         if not isinstance(extends, str) or extends not in embedded_scenes():
             raise ValueError(f"{source}: extends = {extends!r}; valid: one of the embedded scenes "
                              f"{', '.join(embedded_scenes())}")
         base = _read_toml(_scene_path(extends), extends)
+        for given, other in (("plate", "board"), ("board", "plate")):
+            if given in data:  # the file's board replaces the base's, beam or plate
+                base.pop(other, None)
         for section, table in data.items():
             if not isinstance(table, dict):
                 raise ValueError(f"{source}: [{section}] must be a table of keys, got {table!r}")
@@ -154,6 +178,8 @@ def scene_from_dict(data: dict, source: str = "scene") -> Scene:
         data = base
     # The sections that are there first: a typo in one explains more than the sections that are missing.
     parts = {section: _section(section, data[section], source) for section in SECTIONS if section in data}
+    if "plate" in data:
+        parts["board"] = _section("plate", data["plate"], source)
     _require_all(source, [f"section [{s}]" for s in SECTIONS if s not in parts], "section")
     return _build(source, Scene, parts)
 
@@ -178,8 +204,11 @@ def _toml_value(x) -> str:
 def scene_to_dict(scene: Scene) -> dict:
     """The TOML-shaped dict of a concrete scene (angles in degrees under `_deg` keys)."""
     out = {}
-    for section, cls in SECTIONS.items():
+    for section in SECTIONS:
         module = getattr(scene, section)
+        cls = type(module)
+        if isinstance(module, Plate):
+            section = "plate"
         fields = {}
         for name in cls.RANGES:
             value = np.asarray(jnp.asarray(getattr(module, name))).tolist()
@@ -190,6 +219,10 @@ def scene_to_dict(scene: Scene) -> dict:
         for (s, name) in CHOICE_KEYS:
             if s == section:
                 fields[name] = getattr(module, name)
+        if isinstance(module, Plate):
+            fields["edges"] = module.edges
+            if module.mounts is not None:
+                fields["mounts"] = np.asarray(module.mounts).tolist()
         out[section] = fields
     return out
 

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._scene import SECTIONS, Scene
+from ._scene import SECTIONS, Scene, require_beam
 from ._simulate import Numerics, _setup, drop_motion, peak_deflection, peak_strain, peak_stress
 from ._beam import mode_shapes
 from ._peaks import field_on_grid
@@ -55,6 +55,7 @@ class Sensitivity(eqx.Module):
 def sensitivities(scene: Scene, numerics: Numerics | None = None, quantity: str = "stress") -> list[Sensitivity]:
     """d(peak)/d(field) and elasticities for every scalar field of a scene, largest |elasticity| first (fields at
     zero, whose elasticity is undefined (None), follow, largest |derivative| first). `quantity`: stress, strain or deflection."""
+    require_beam(scene, "bd.sensitivities")
     if quantity not in _PEAKS:
         raise ValueError(f"quantity = {quantity!r}; valid: {', '.join(_PEAKS)}")
     peak_fn = _PEAKS[quantity]
@@ -79,6 +80,7 @@ def smooth_peak_stress(scene: Scene, numerics: Numerics | None = None, temperatu
     11 T, i.e. 11 % for temperature 0.01), and the grid maximum itself undershoots the refined peak by the grid's
     resolution. Use it when an objective wants a gradient that blends nearby peaks; `peak_stress` is the true max.
     """
+    require_beam(scene, "bd.smooth_peak_stress")
     if not temperature > 0:
         raise ValueError(f"temperature = {temperature}; valid: > 0")
     numerics = Numerics() if numerics is None else numerics

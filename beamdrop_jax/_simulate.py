@@ -792,6 +792,9 @@ def response_fields(scene: Scene, numerics: Numerics | None = None, nx: int = 10
     plus the membrane strain with `Numerics(stretching=True)`.
     """
     numerics = Numerics() if numerics is None else numerics
+    if isinstance(scene.board, Plate):
+        raise ValueError("response_fields reads a beam along x; for a plate use bd.plate_strain_map (a map at one "
+                         "time) and simulate(..., gauges=((x, y), ...)) (histories at points)")
     as_int(nx, "nx", 2)
     as_int(nt, "nt", 2)
     response = simulate(scene, numerics)
@@ -851,3 +854,45 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
                      "linear (small-deflection) theory overestimates it; mid-plane stretching matters "
                      "(Numerics(method=\"diffrax\", stretching=True))")
     return notes
+
+
+class StrainMap(eqx.Module):
+    """Largest principal surface strain over a plate at one time: `x` (nx,), `y` (ny,) (m), `strain` (nx, ny)
+    (NaN inside the mount discs), `t` (s)."""
+
+    x: Float[Array, " nx"]
+    y: Float[Array, " ny"]
+    strain: Float[Array, "nx ny"]
+    t: Float[Array, ""]
+
+
+def plate_strain_map(scene: Scene, response: Response, numerics: Numerics | None = None, t=None, nx: int = 133,
+                     ny: int = 78) -> StrainMap:
+    """The largest principal surface strain over a plate scene's board at time `t` (s; default: the peak stress's
+    time), with the modes `response` (from `simulate(scene, numerics)`) used."""
+    numerics = Numerics() if numerics is None else numerics
+    if not isinstance(scene.board, Plate):
+        raise ValueError("plate_strain_map needs a scene whose board is a bd.Plate")
+    as_int(nx, "nx", 2)
+    as_int(ny, "ny", 2)
+    t = response.peak.t if t is None else as_float(t, "t", Range(0.0, unit="s"))
+    return _strain_map(scene, numerics, response.n_modes, t, nx, ny)
+
+
+@eqx.filter_jit
+def _strain_map(scene, numerics, used, t, nx, ny):
+    plate = scene.board
+    M = numerics.computed_modes
+    motion = drop_motion(scene, numerics)[0]
+    mask = (jnp.arange(1, M + 1) <= used).astype(float_dtype())
+    modal, _ = _modal_solution(plate, motion, numerics, _span(plate, motion, numerics), mask)
+    x = jnp.linspace(0.0, 1.0, nx) * plate.length
+    y = jnp.linspace(-0.5, 0.5, ny) * plate.width
+    X, Y = jnp.meshgrid(x, y, indexing="ij")
+    _, kxx, kyy, kxy = (v @ (modal(t) * mask) for v in plate_modes(plate, M).shapes(X, Y))
+    strain = surface_strain(plate, kxx, kyy, kxy)
+    if plate.mounts is not None:
+        inside = jnp.any(jnp.hypot(X[..., None] - plate.mounts[:, 0], Y[..., None] - plate.mounts[:, 1])
+                         < plate.mount_radius, axis=-1)
+        strain = jnp.where(inside, jnp.nan, strain)
+    return StrainMap(x, y, strain, jnp.asarray(t))

@@ -199,14 +199,23 @@ def cmd_drop(args, output):
     if args.gauge is not None and not 0 <= args.gauge * 1e-3 <= float(scene.board.length):
         raise ValueError(f"--gauge {args.gauge:g} mm is off the board: valid [0, {float(scene.board.length) * 1e3:g}] "
                          "mm from end A")
-    res = bd.simulate(scene, numerics)
+    plate = isinstance(scene.board, bd.Plate)
+    if plate:  # a gauge at the centre (where JESD22-B111 measures) and one at --gauge on the centre line
+        gauges = [(float(scene.board.length) / 2, 0.0)] + ([(args.gauge * 1e-3, 0.0)] if args.gauge is not None else [])
+        board_text = (f"; plate {float(scene.board.length) * 1e3:g} x {float(scene.board.width) * 1e3:g} mm, edges "
+                      f"{scene.board.edges}" + ("" if scene.board.mounts is None
+                                                else f", {scene.board.mounts.shape[0]} mounts"))
+    else:
+        gauges = None
+        board_text = "" if scene.board.ends == "pinned" else f"; board ends {scene.board.ends}"
+    res = bd.simulate(scene, numerics, gauges=gauges)
     tau = float(scene.contact.duration)
     output.report["scene"] = args.scene or "default"
     output.summary(res.summary(),
                    f"Drop of {_scene_name(args)}: {float(scene.drop.height):g} m onto a corner at "
                    f"{math.degrees(float(scene.drop.orientation)):.1f} deg, "
                    + (f"half-sine contact {tau * 1e3:g} ms" if tau > 0 else "ideal impulse (contact duration 0)")
-                   + ("" if scene.board.ends == "pinned" else f"; board ends {scene.board.ends}"))
+                   + board_text)
     if numerics.max_impacts > 1:
         imp = res.impacts
         rows = [{"impact": i + 1, "t_ms": float(imp.t[i]) * 1e3, "corner_from_G_mm": np.asarray(imp.corner[i]) * 1e3,
@@ -226,6 +235,24 @@ def cmd_drop(args, output):
     for note in bd.response_notes(scene, res):
         output.say(f"  note: {note}")
         output.report.setdefault("notes", []).append(note)
+    if plate:
+        from ._report import write_csv
+
+        g = res.gauges
+        rows = [{"t_ms": float(t) * 1e3, **{f"gauge{i + 1}_microstrain": float(g.strain[i, j]) * 1e6
+                                             for i in range(len(gauges))}} for j, t in enumerate(np.asarray(g.t))]
+        output.wrote(write_csv(rows, Path(args.out) / "gauges.csv"))
+        for i, (gx, gy) in enumerate(gauges):
+            output.summary({"gauge_x_mm": gx * 1e3, "gauge_y_mm": gy * 1e3,
+                            "gauge_peak_strain_microstrain": float(g.peak_strain[i]) * 1e6,
+                            "gauge_peak_time_ms": float(g.peak_time[i]) * 1e3},
+                           "Gauge (largest principal surface strain)")
+        if not args.no_plots:
+            strain_map = bd.plate_strain_map(scene, res, numerics)
+            _save(output, bd.plot_scene(scene, res), "scene.png", args)
+            _save(output, bd.plot_plate_strain(strain_map, res, scene.board), "strain_map.png", args)
+            _save(output, bd.plot_impacts(scene, res), "impact.png", args)
+        return
     if args.gauge is not None:
         fields = bd.response_fields(scene, numerics, x=[args.gauge * 1e-3], nt=2001)
         from ._report import write_csv

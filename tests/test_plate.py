@@ -41,28 +41,27 @@ def test_square_sfsf_plate_matches_leissa():
     np.testing.assert_allclose(lam(plate, 6), [9.631, 16.135, 36.726, 38.945, 46.738, 70.740], rtol=2e-4)
 
 
-def _corner_supported_reference(nu, n_poly=10, n=4):
-    """An independent Ritz model of a square plate (side 1, D = rho h = 1) with free edges on point supports at its
-    corners: a Chebyshev basis T_i(2x - 1) T_j(2y - 1), the supports as stiff springs (1e9), scipy's generalised
-    eigh."""
+def _point_supported_reference(L, W, nu, mounts, n_poly=10, n=4):
+    """Leissa's frequency parameters omega L^2 sqrt(rho h / D) of the lowest n modes of an independent Ritz model
+    of a free L x W plate on point supports at `mounts` ((x, y), y from the centre line): a Chebyshev basis
+    T_i(2 xi - 1) T_j(2 eta - 1), the supports as stiff springs, scipy's generalised eigh."""
     C = np.polynomial.chebyshev
     z, w = np.polynomial.legendre.leggauss(40)
-    s, w = z, w / 2  # s = 2x - 1 on the quadrature points of [0, 1]
+    w = w / 2  # z = 2 xi - 1 on the quadrature points of [0, 1]
     eye = np.eye(n_poly)
-    V = np.stack([C.chebval(s, e) for e in eye], axis=1)
-    dV = np.stack([2 * C.chebval(s, C.chebder(e)) for e in eye], axis=1)
-    ddV = np.stack([4 * C.chebval(s, C.chebder(e, 2)) for e in eye], axis=1)
+    V = np.stack([C.chebval(z, e) for e in eye], axis=1)
+    dV = np.stack([2 * C.chebval(z, C.chebder(e)) for e in eye], axis=1)
+    ddV = np.stack([4 * C.chebval(z, C.chebder(e, 2)) for e in eye], axis=1)
     g = lambda a, b: (a * w[:, None]).T @ b  # noqa: E731
     I00, I11, I22, I20 = g(V, V), g(dV, dV), g(ddV, ddV), g(ddV, V)
-    K = (np.kron(I22, I00) + np.kron(I00, I22) + nu * (np.kron(I20, I20.T) + np.kron(I20.T, I20))
-         + 2 * (1 - nu) * np.kron(I11, I11))
+    K = (np.kron(I22, I00) / L**4 + np.kron(I00, I22) / W**4
+         + nu * (np.kron(I20, I20.T) + np.kron(I20.T, I20)) / (L * W) ** 2 + 2 * (1 - nu) * np.kron(I11, I11) / (L * W) ** 2)
     M = np.kron(I00, I00)
-    ends = np.stack([C.chebval(np.array([-1.0, 1.0]), e) for e in eye], axis=1)
-    for a in ends:
-        for b in ends:
-            row = np.kron(a, b)
-            K = K + 1e9 * np.outer(row, row)
-    return np.sqrt(eigh(K, M, eigvals_only=True)[:n])
+    stiff = 1e2 * np.max(np.diag(K))  # stiffer springs lose the small eigenvalues to round-off
+    for x, y in mounts:
+        row = np.kron([C.chebval(2 * x / L - 1, e) for e in eye], [C.chebval(2 * y / W, e) for e in eye])
+        K = K + stiff * np.outer(row, row)
+    return np.sqrt(eigh(K, M, eigvals_only=True)[:n]) * L**2
 
 
 def test_corner_supported_plate_matches_published_values_and_an_independent_model():
@@ -72,7 +71,7 @@ def test_corner_supported_plate_matches_published_values_and_an_independent_mode
     found = lam(plate, 4)
     # Leissa (1969), square plate point-supported at the four corners, nu = 0.3: 7.12, 15.77, 15.77, 19.60.
     np.testing.assert_allclose(found, [7.12, 15.77, 15.77, 19.60], rtol=2e-3)
-    np.testing.assert_allclose(found, _corner_supported_reference(0.3), rtol=2e-4)
+    np.testing.assert_allclose(found, _point_supported_reference(1.0, 1.0, 0.3, corners), rtol=2e-4)
 
 
 def _pair(nu):
@@ -209,3 +208,29 @@ def test_plate_inputs_are_checked_by_name():
         bd.Plate(edges="FFFF", mounts=((0.0, 0.0),))
     with pytest.raises(ValueError, match="gauges"):
         bd.board_response(bd.Board(), bd.HalfSine(1.0, 1.0, 5e-4), gauges=((0.05, 0.0),))
+
+
+def test_jesd22_board_scene_through_the_cli_and_a_scene_file(tmp_path, capsys):
+    import json
+
+    from beamdrop_jax.cli import main
+
+    scene = bd.load_scene("jesd22-board")
+    bd.save_scene(scene, tmp_path / "board.toml")
+    again = bd.load_scene(tmp_path / "board.toml")
+    assert again.board.edges == "FFFF"
+    np.testing.assert_array_equal(np.asarray(again.board.mounts), np.asarray(scene.board.mounts))
+    assert main(["drop", "--scene", str(tmp_path / "board.toml"), "--no-plots", "--json", "--out", str(tmp_path)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    plate = scene.board
+    L, W, D = float(plate.length), float(plate.width), float(plate.bending_stiffness)
+    # The same polynomial space as the scene's 12 x 12 basis, built another way (Chebyshev, penalty springs).
+    reference = _point_supported_reference(L, W, 0.2, np.asarray(plate.mounts), n_poly=12) / L**2 * math.sqrt(
+        D / (float(plate.density) * float(plate.thickness))) / (2 * math.pi)
+    np.testing.assert_allclose(report["frequencies_Hz"][:4], reference, rtol=1e-6)
+    # The gauge at the centre reads the strain there; the peak over the plate is at least that.
+    gauge = report["gauge_peak_strain_microstrain"]
+    assert 0 < gauge[0] <= report["peak_strain_microstrain"] * (1 + 1e-9)
+    assert (tmp_path / "gauges.csv").exists()
+    assert main(["montecarlo", "--scene", "jesd22-board", "-n", "10", "--no-plots"]) == 2
+    assert "works on beam boards" in capsys.readouterr().err
