@@ -34,6 +34,7 @@ from ._clatter import (
 from ._motion import HalfSine as HalfSine, Impulse as Impulse, PulseTrain as PulseTrain, Record as Record
 from ._motion import JESD22_B111_CONDITION_B as JESD22_B111_CONDITION_B
 from ._beam import ENDS as ENDS, natural_frequencies as natural_frequencies
+from ._mounts import MountResult as MountResult, optimize_mounts as optimize_mounts
 from ._plate import EDGE_CODES as EDGE_CODES, Plate as Plate, PlateModes as PlateModes, plate_modes as plate_modes
 from ._board import unit_response as unit_response
 from ._peaks import FieldPeak as FieldPeak

@@ -25,7 +25,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._checks import float_dtype
-from ._plate import Plate, plate_frequencies, plate_participation
+from ._plate import Plate, PlateModes, plate_frequencies, plate_participation
 from ._trig import sincos
 
 ENDS = ("pinned", "clamped", "clamped-pinned", "pinned-clamped", "clamped-free")
@@ -133,6 +133,8 @@ def natural_frequencies(board, n_modes: int) -> Float[Array, " n"]:
     """
     if isinstance(board, Plate):
         return plate_frequencies(board, n_modes)
+    if isinstance(board, PlateModes):  # a plate's modes, solved once per drop
+        return board.frequencies()[:n_modes]
     # Pinned ends in closed form: traced, these compile to a faster per-drop loop than the same numbers as
     # constants (measured: direct Monte-Carlo 2.5x faster).
     if board.ends == "pinned":
@@ -152,6 +154,8 @@ def support_participation(board, n_modes: int) -> Float[Array, "n 2"]:
     plates (`_plate`)."""
     if isinstance(board, Plate):
         return plate_participation(board, n_modes)
+    if isinstance(board, PlateModes):
+        return board.participation()[:n_modes]
     if board.ends == "pinned":
         k = mode_numbers(n_modes)
         return jnp.stack([-2.0 / (k * math.pi), 2.0 * (-1.0) ** k / (k * math.pi)], axis=-1)

@@ -307,11 +307,29 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
         add("peer: scipy solve_ivp", f"{method} rtol=1e-8 n_modes=6", (time.perf_counter() - t0) / n_scipy, vals)
 
     study = stability_study(level, progress=progress)
+    plates = None if tiny else plate_bench(repeats=5 if quick else 9)
+    if progress and plates is not None:
+        print(f"  plate drop (jesd22-board, 4 screws): {plates['plate_drop_ms']:.3g} ms, beam drop (default) "
+              f"{plates['beam_drop_ms']:.3g} ms in the same run ({plates['plate_over_beam']:.3g}x)", flush=True)
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        (out / "bench.json").write_text(json.dumps(dict(drops=n, rows=rows, stability=study), indent=1))
+        (out / "bench.json").write_text(json.dumps(dict(drops=n, rows=rows, stability=study, plates=plates),
+                                                   indent=1))
     return rows
+
+
+def plate_bench(repeats: int = 5) -> dict:
+    """Median wall time of one `simulate` after compilation: the embedded `jesd22-board` plate (four screws) and,
+    as the peer in the same run, the default beam scene."""
+    from ._scenefile import load_scene
+    from ._simulate import simulate
+
+    def drop_time(scene):
+        return _median_time(lambda: jax.block_until_ready(simulate(scene).peak.stress), repeats)
+
+    plate, beam = drop_time(load_scene("jesd22-board")), drop_time(Scene.default())
+    return dict(plate_drop_ms=plate * 1e3, beam_drop_ms=beam * 1e3, plate_over_beam=plate / beam)
 
 
 def _support_jumps(scene):

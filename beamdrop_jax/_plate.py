@@ -192,11 +192,11 @@ class Plate(eqx.Module):
         _check_ranges(self)
         if self.mounts is not None and is_concrete(self):
             m = np.asarray(self.mounts)
-            L, W = float(self.length), float(self.width)
-            if not (np.all((m[:, 0] >= 0) & (m[:, 0] <= L)) and np.all(np.abs(m[:, 1]) <= W / 2)):
-                raise ValueError(f"Plate.mounts = {m.tolist()} m; valid: 0 <= x <= length = {L:g} m and "
-                                 f"|y| <= width/2 = {W / 2:g} m")
-        if self.edges == "FFFF" and (self.mounts is None or self.mounts.shape[0] < 3):
+            L, W = np.asarray(self.length)[..., None], np.asarray(self.width)[..., None]  # batches too
+            if not (np.all((m[..., 0] >= 0) & (m[..., 0] <= L)) and np.all(np.abs(m[..., 1]) <= W / 2)):
+                raise ValueError(f"Plate.mounts = {m.tolist()} m; valid: 0 <= x <= length = {np.max(L):g} m and "
+                                 f"|y| <= width/2 = {np.max(W) / 2:g} m")
+        if self.edges == "FFFF" and (self.mounts is None or self.mounts.shape[-2] < 3):
             raise ValueError("a plate with free edges (Plate.edges = 'FFFF') needs at least 3 mounts not on one "
                              "line: it would move as a rigid body")
 
@@ -211,9 +211,9 @@ class Plate(eqx.Module):
 
         flags = _range_flags(self)
         if self.mounts is not None:
-            inside = (self.mounts[:, 0] >= 0) & (self.mounts[:, 0] <= self.length) & \
-                     (jnp.abs(self.mounts[:, 1]) <= self.width / 2)
-            flags = combine(flags, flag_if(~jnp.all(inside), Flag.BOARD_OUTSIDE_HOUSING))
+            inside = (self.mounts[..., 0] >= 0) & (self.mounts[..., 0] <= jnp.asarray(self.length)[..., None]) & \
+                     (jnp.abs(self.mounts[..., 1]) <= jnp.asarray(self.width)[..., None] / 2)
+            flags = combine(flags, flag_if(~jnp.all(inside, axis=-1), Flag.BOARD_OUTSIDE_HOUSING))
         return flags
 
 
@@ -293,6 +293,19 @@ class PlateModes(eqx.Module):
         """omega_k, rad/s."""
         return jnp.sqrt(jnp.maximum(self.omega2, jnp.finfo(self.omega2.dtype).tiny ** 0.25))
 
+    def participation(self) -> Float[Array, "n 2"]:
+        """Modal forcing per unit support acceleration (columns p_A, p_B), as the beam's."""
+        (_, _, _, _, (mx, mxi)), (_, _, _, _, (my,)) = _integrals(_basis_of(self.plate))
+        moments = jnp.asarray(np.stack([np.kron(mx - mxi, my), np.kron(mxi, my)], axis=-1), dtype=float_dtype())
+        return -2.0 * self.coeffs.T @ moments
+
+    @property
+    def damping_ratio(self):
+        return self.plate.damping_ratio
+
+    def flags(self):
+        return self.plate.flags()
+
 
 def plate_modes(plate: Plate, n_modes: int) -> PlateModes:
     """The lowest n modes of a plate (one eigensolve; see `PlateModes`)."""
@@ -306,10 +319,7 @@ def plate_frequencies(plate: Plate, n_modes: int) -> Float[Array, " n"]:
 
 def plate_participation(plate: Plate, n_modes: int) -> Float[Array, "n 2"]:
     """Modal forcing per unit support acceleration (columns p_A, p_B), as the beam's."""
-    (_, _, _, _, (mx, mxi)), (_, _, _, _, (my,)) = _integrals(_basis_of(plate))
-    coeffs = _eigen(plate, n_modes)[1]
-    moments = jnp.asarray(np.stack([np.kron(mx - mxi, my), np.kron(mxi, my)], axis=-1), dtype=float_dtype())
-    return -2.0 * coeffs.T @ moments
+    return plate_modes(plate, n_modes).participation()
 
 
 def surface_strain(plate: Plate, kxx, kyy, kxy):

@@ -84,8 +84,9 @@ def summary_text(summary: dict, title: str = "") -> str:
 
 
 def write_csv(rows: list[dict], path) -> Path:
-    """Write dict rows (same keys) as CSV; returns the path."""
+    """Write dict rows (same keys) as CSV (creating its folder); returns the path."""
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else [])
         writer.writeheader()

@@ -24,7 +24,7 @@ from ._clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
 from ._kinematics import HousingImpact, housing_impact
 from ._motion import HalfSine, Impulse, PulseTrain, Record
 from ._peaks import FieldPeak, field_on_grid, find_peak, find_plate_peak
-from ._plate import Plate, plate_modes, surface_strain, surface_stress
+from ._plate import Plate, PlateModes, plate_modes, surface_strain, surface_stress
 from ._scene import Board, Scene, check_scene, require_single, scene_flags
 
 METHODS = ("closed_form", "diffrax")
@@ -337,6 +337,7 @@ class _Setup(NamedTuple):
     k: Array
     curvature: Array
     flags: Array
+    modes: "PlateModes | None"  # a plate's modes (None for a beam)
 
 
 MIN_POINTS_PER_PERIOD = 2
@@ -373,18 +374,21 @@ def _raise_if_window(board: Board, motion, numerics: Numerics, flags, what: str,
 
 def _setup(board: Board, motion, numerics: Numerics, with_check: bool) -> _Setup:
     M = numerics.computed_modes
-    used, check = _mode_counts(board, motion, numerics)
+    # A plate's modes come from one eigensolve, shared by everything below.
+    model = plate_modes(board, M) if isinstance(board, Plate) else board
+    used, check = _mode_counts(model, motion, numerics)
     nx, nt = numerics.grid_shape()
-    window, t = _time_grid(board, motion, numerics, nt)
+    window, t = _time_grid(model, motion, numerics, nt)
     k = jnp.arange(1, M + 1)
     computed = jnp.maximum(used, check) if with_check else used
-    modal, failed = _modal_solution(board, motion, numerics, window, (k <= computed).astype(float_dtype()))
+    modal, failed = _modal_solution(model, motion, numerics, window, (k <= computed).astype(float_dtype()))
     x = jnp.linspace(0.0, 1.0, nx) * board.length
     Q = modal.grid_factors(t)
     top = jnp.maximum(used, check) if with_check else used
-    flags = flag_if(_window_points(board, numerics, top) < MIN_POINTS_PER_PERIOD, Flag.WINDOW_RANGE)
+    flags = flag_if(_window_points(model, numerics, top) < MIN_POINTS_PER_PERIOD, Flag.WINDOW_RANGE)
     curvature = jnp.ones(M, dtype=float_dtype()) if isinstance(board, Plate) else curvature_scale(board, M)
-    return _Setup(used, check, window, modal, failed, x, t, Q, k, curvature, flags)
+    return _Setup(used, check, window, modal, failed, x, t, Q, k, curvature, flags,
+                  model if isinstance(board, Plate) else None)
 
 
 def _membrane(board: Board, numerics: Numerics, rows, is_curvature) -> Array | None:
@@ -575,8 +579,7 @@ def _respond_plate(plate: Plate, motion, numerics: Numerics, flags, gauges=None)
     if numerics.stretching:
         raise ValueError("Numerics.stretching = True models pinned beams only, not plates")
     S = _setup(plate, motion, numerics, with_check=True)
-    M = numerics.computed_modes
-    modes = plate_modes(plate, M)
+    modes = S.modes
     used_mask = (S.k <= S.used).astype(float_dtype())
     masks = jnp.stack([used_mask, (S.k <= S.check).astype(float_dtype()), used_mask, used_mask])
     found = _plate_searches(S, plate, numerics, modes, ("stress", "stress", "strain", "deflection"), masks)
@@ -707,8 +710,7 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     S = _setup(board, motion, numerics, with_check=False)
     mask = (S.k <= S.used).astype(float_dtype())
     if isinstance(board, Plate):
-        modes = plate_modes(board, numerics.computed_modes)
-        values = _plate_searches(S, board, numerics, modes, quantities, jnp.stack([mask] * len(quantities))).value
+        values = _plate_searches(S, board, numerics, S.modes, quantities, jnp.stack([mask] * len(quantities))).value
         flags = combine(scene_flags(scene), impact_flags, board.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
                         flag_if(~jnp.all(jnp.isfinite(values)), Flag.NONFINITE_RESULT))
         return jnp.where(flags != 0, jnp.nan, values), flags
@@ -852,7 +854,8 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
     if float(peak.deflection) > float(board.thickness):
         notes.append(f"peak deflection {float(peak.deflection) / float(board.thickness):.2g} x the thickness: "
                      "linear (small-deflection) theory overestimates it; mid-plane stretching matters "
-                     "(Numerics(method=\"diffrax\", stretching=True))")
+                     + ("(not modelled for plates yet)" if isinstance(board, Plate)
+                        else "(Numerics(method=\"diffrax\", stretching=True))"))
     return notes
 
 
@@ -885,11 +888,12 @@ def _strain_map(scene, numerics, used, t, nx, ny):
     M = numerics.computed_modes
     motion = drop_motion(scene, numerics)[0]
     mask = (jnp.arange(1, M + 1) <= used).astype(float_dtype())
-    modal, _ = _modal_solution(plate, motion, numerics, _span(plate, motion, numerics), mask)
+    modes = plate_modes(plate, M)
+    modal, _ = _modal_solution(modes, motion, numerics, _span(modes, motion, numerics), mask)
     x = jnp.linspace(0.0, 1.0, nx) * plate.length
     y = jnp.linspace(-0.5, 0.5, ny) * plate.width
     X, Y = jnp.meshgrid(x, y, indexing="ij")
-    _, kxx, kyy, kxy = (v @ (modal(t) * mask) for v in plate_modes(plate, M).shapes(X, Y))
+    _, kxx, kyy, kxy = (v @ (modal(t) * mask) for v in modes.shapes(X, Y))
     strain = surface_strain(plate, kxx, kyy, kxy)
     if plate.mounts is not None:
         inside = jnp.any(jnp.hypot(X[..., None] - plate.mounts[:, 0], Y[..., None] - plate.mounts[:, 1])

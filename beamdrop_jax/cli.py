@@ -236,17 +236,17 @@ def cmd_drop(args, output):
         output.say(f"  note: {note}")
         output.report.setdefault("notes", []).append(note)
     if plate:
-        from ._report import write_csv
+        from ._report import summary_text, write_csv
 
         g = res.gauges
         rows = [{"t_ms": float(t) * 1e3, **{f"gauge{i + 1}_microstrain": float(g.strain[i, j]) * 1e6
                                              for i in range(len(gauges))}} for j, t in enumerate(np.asarray(g.t))]
         output.wrote(write_csv(rows, Path(args.out) / "gauges.csv"))
-        for i, (gx, gy) in enumerate(gauges):
-            output.summary({"gauge_x_mm": gx * 1e3, "gauge_y_mm": gy * 1e3,
-                            "gauge_peak_strain_microstrain": float(g.peak_strain[i]) * 1e6,
-                            "gauge_peak_time_ms": float(g.peak_time[i]) * 1e3},
-                           "Gauge (largest principal surface strain)")
+        readings = [{"x_mm": gx * 1e3, "y_mm": gy * 1e3, "peak_strain_microstrain": float(g.peak_strain[i]) * 1e6,
+                     "peak_time_ms": float(g.peak_time[i]) * 1e3} for i, (gx, gy) in enumerate(gauges)]
+        output.report["gauges"] = readings
+        for i, reading in enumerate(readings):
+            output.say(summary_text(reading, f"Gauge {i + 1} (largest principal surface strain)"))
         if not args.no_plots:
             strain_map = bd.plate_strain_map(scene, res, numerics)
             _save(output, bd.plot_scene(scene, res), "scene.png", args)
