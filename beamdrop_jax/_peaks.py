@@ -234,6 +234,7 @@ def find_plate_peak(
     candidates: int = 4,
     newton_steps: int = 6,
     refine: bool = True,
+    grid: Float[Array, "p nt"] | None = None,
 ) -> PlatePeak:
     """Peak over a plate and the window of `measure(plate, u, k_xx, k_yy, k_xy)` (e.g. the largest principal
     surface strain) of the field with modal coefficients `coeffs` (the modes' `PlateModes`), from the evenly spaced
@@ -242,13 +243,13 @@ def find_plate_peak(
     The grid's best `candidates` (largest local maxima in time) are refined by Newton's method in (x, y, t) in a
     trust region of one grid cell (derivatives by automatic differentiation), steps that enter a mount disc
     projected onto its circle. The value's gradient is taken at the maximiser (envelope theorem); on a mount's
-    circle the point moves with the mount."""
+    circle the point moves with the mount. `grid`: the measure on the grid points (xi-major) and times, when the
+    caller has it (searches that share fields)."""
     plate = modes.plate
     cell = jnp.stack([xi[1] - xi[0], eta[1] - eta[0], t[1] - t[0]])
     xi, eta = (v.ravel() for v in jnp.meshgrid(xi, eta, indexing="ij"))
     x, y = xi * plate.length, eta * plate.width
-    fields = [field_on_grid(coeffs, Q, s) for s in modes.shapes(x, y)]
-    A = measure(plate, *fields)
+    A = measure(plate, *(field_on_grid(coeffs, Q, s) for s in modes.shapes(x, y))) if grid is None else grid
     if plate.mounts is not None:
         near = jnp.any(jnp.hypot(x[:, None] - plate.mounts[:, 0], y[:, None] - plate.mounts[:, 1])
                        < plate.mount_radius * (1 - 1e-9), axis=1)

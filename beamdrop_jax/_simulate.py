@@ -530,20 +530,28 @@ def _plate_grid(plate: Plate):
     return jnp.linspace(0.0, 1.0, 2 * plate.basis[0] + 1), jnp.linspace(-0.5, 0.5, 2 * plate.basis[1] + 1)
 
 
-def _plate_searches(S: _Setup, plate: Plate, numerics: Numerics, modes, kinds: tuple[str, ...], masks):
-    """Peaks of the measures `kinds` (of `PLATE_MEASURES`) of the fields with modal masks `masks` (rows), in one
-    batched search (one compiled copy)."""
+def _plate_searches(S: _Setup, plate: Plate, numerics: Numerics, modes, kinds: tuple[str, ...], masks,
+                    shared: tuple[int, ...] | None = None):
+    """Peaks of the measures `kinds` (of `PLATE_MEASURES`) of the fields with modal masks `masks` (rows): the
+    fields on the grid once per distinct mask (`shared[i]`: the row whose mask row i uses; default each its own),
+    each row's own measure on them, then one batched refinement (one compiled copy)."""
+    shared = tuple(range(len(kinds))) if shared is None else shared
+    xi, eta = _plate_grid(plate)
+    XI, ETA = (v.ravel() for v in jnp.meshgrid(xi, eta, indexing="ij"))
+    shapes = modes.shapes(XI * plate.length, ETA * plate.width)
+    fields = {j: [field_on_grid(masks[j], S.Q, v) for v in shapes] for j in sorted(set(shared))}
+    grids = jnp.stack([PLATE_MEASURES[k](plate, *fields[j]) for k, j in zip(kinds, shared)])
     measures = tuple(PLATE_MEASURES[k] for k in kinds)
 
-    def search(mask, which):
+    def search(mask, which, grid):
         def measure(*args):
             return jnp.select([which == i for i in range(len(measures))], [m(*args) for m in measures])
 
-        return find_plate_peak(measure, mask, S.modal, S.Q, modes, *_plate_grid(plate), S.t, S.window,
+        return find_plate_peak(measure, mask, S.modal, S.Q, modes, xi, eta, S.t, S.window,
                                candidates=numerics.candidates, newton_steps=numerics.newton_steps,
-                               refine=numerics.refine)
+                               refine=numerics.refine, grid=grid)
 
-    return jax.vmap(search)(masks, jnp.arange(len(kinds)))
+    return jax.vmap(search)(masks, jnp.arange(len(kinds)), grids)
 
 
 def _gauges(plate: Plate, S: _Setup, modes, mask, points) -> Gauges:
@@ -582,7 +590,8 @@ def _respond_plate(plate: Plate, motion, numerics: Numerics, flags, gauges=None)
     modes = S.modes
     used_mask = (S.k <= S.used).astype(float_dtype())
     masks = jnp.stack([used_mask, (S.k <= S.check).astype(float_dtype()), used_mask, used_mask])
-    found = _plate_searches(S, plate, numerics, modes, ("stress", "stress", "strain", "deflection"), masks)
+    found = _plate_searches(S, plate, numerics, modes, ("stress", "stress", "strain", "deflection"), masks,
+                            shared=(0, 1, 0, 0))
     stress, check, strain, deflection = (jax.tree_util.tree_map(lambda v: v[i], found) for i in range(4))
     error = jnp.abs(stress.value - check.value) / jnp.maximum(stress.value, jnp.finfo(S.window.dtype).tiny)
     nonfinite = ~jnp.isfinite(stress.value) | ~jnp.isfinite(deflection.value)
@@ -710,7 +719,8 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     S = _setup(board, motion, numerics, with_check=False)
     mask = (S.k <= S.used).astype(float_dtype())
     if isinstance(board, Plate):
-        values = _plate_searches(S, board, numerics, S.modes, quantities, jnp.stack([mask] * len(quantities))).value
+        values = _plate_searches(S, board, numerics, S.modes, quantities, jnp.stack([mask] * len(quantities)),
+                                 shared=(0,) * len(quantities)).value
         flags = combine(scene_flags(scene), impact_flags, board.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
                         flag_if(~jnp.all(jnp.isfinite(values)), Flag.NONFINITE_RESULT))
         return jnp.where(flags != 0, jnp.nan, values), flags
