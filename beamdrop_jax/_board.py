@@ -3,6 +3,7 @@ ideal impulse or a half-sine pulse, whatever the board model that supplies omega
 
 import math
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -23,35 +24,41 @@ def _phi(w):
     return out
 
 
+def _cdiv(a, b):
+    """a / b for complex b bounded away from 0 and overflow: one multiply by the conjugate (XLA's general complex
+    division guards against both and compiles to many more operations)."""
+    return a * jnp.conj(b) / (jnp.real(b) ** 2 + jnp.imag(b) ** 2)
+
+
 def _response_phasor(t, omega, zeta, duration):
-    """Z(t), lambda, omega_d and the pulse's switch, with the unit response q = Im(Z) / omega_d."""
+    """Z(t), lambda, omega_d and the pulse's switch, with the unit response q = Im(Z) / omega_d.
+
+    For the half-sine, Z = (pi / (2 tau)) e^{lam (t - T)} I(T), T = min(t, tau), with
+    I(T) = int_0^T e^{lam (T - s)} sin(Omega s) ds = (Omega T e^{i Omega T} phi(eps T) - sin(Omega T)) / (lam + i Omega),
+    eps = lam - i Omega, phi(w) = (e^w - 1) / w: regular at resonance (eps = 0), where the textbook form
+    (Omega e^{lam T} - lam sin - Omega cos) / (lam^2 + Omega^2) cancels; lam + i Omega never vanishes."""
     t = jnp.asarray(t, dtype=float_dtype())
     omega = jnp.asarray(omega)
     zeta = jnp.asarray(zeta)
     tau = jnp.asarray(duration)
     t_pos = jnp.maximum(t, 0.0)
     omega_d = omega * jnp.sqrt(1.0 - zeta**2)
-    lam = -zeta * omega + 1j * omega_d
-    e_lam_t = cexp(lam * t_pos)
+    lam = jax.lax.complex(-zeta * omega, omega_d)
 
     is_pulse = tau > 0
     tau_s = jnp.where(is_pulse, tau, 1.0)
     Omega = math.pi / tau_s
-    T = jnp.minimum(t_pos, tau_s)
-    e_rest = cexp(lam * (t_pos - T))  # |.| <= 1: no overflow for heavy damping
-
-    def piece(sign):
-        # Integral over [0, T] of e^{lam (t - s)} e^{i sign Omega s} ds.
-        z = 1j * sign * Omega - lam
-        zT = z * T
-        small = jnp.abs(zT) < _SERIES_RADIUS
-        z_safe = jnp.where(small, 1.0 + 0j, z)
-        direct = (e_rest * cexp(1j * sign * Omega * T) - e_lam_t) / z_safe
-        series = e_lam_t * T * _phi(jnp.where(small, zT, 0j))
-        return jnp.where(small, series, direct)
-
-    pulse = math.pi / (2.0 * tau_s) * (piece(1.0) - piece(-1.0)) / 2j
-    Z = jnp.where(is_pulse, pulse, e_lam_t)
+    T = jnp.where(is_pulse, jnp.minimum(t_pos, tau_s), 0.0)
+    e_rest = cexp(lam * (t_pos - T))  # |.| <= 1: no overflow for heavy damping; e^{lam t} for the impulse
+    sin, cos = sincos(Omega * T)
+    w = (lam - 1j * Omega) * T
+    small = jnp.abs(w) < _SERIES_RADIUS
+    # Omega T e^{i Omega T} phi(w); directly Omega (e^{lam T} - e^{i Omega T}) / eps.
+    e_omega = jax.lax.complex(cos, sin)
+    direct = _cdiv(Omega * T * (cexp(lam * T) - e_omega), jnp.where(small, 1.0 + 0j, w))
+    series = Omega * T * e_omega * _phi(jnp.where(small, w, 0j))
+    integral = _cdiv(jnp.where(small, series, direct) - sin, lam + 1j * Omega)
+    Z = jnp.where(is_pulse, math.pi / (2.0 * tau_s) * e_rest * integral, e_rest)
     return Z, lam, omega_d, (is_pulse, tau_s, Omega, t_pos), t
 
 

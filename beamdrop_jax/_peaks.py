@@ -80,11 +80,16 @@ def find_peak(
     `Q = modal.grid_factors(t)` on the grid (see `field_on_grid`), and the board's deflection shapes or, with
     `curvature` (a bool or a traced 0/1), its curvature shapes (`_beam.mode_shapes`)."""
     n = coeffs.shape[-1]
-    F = field_on_grid(coeffs, Q, mode_shapes(board, x, n, curvature))
+    if refine:
+        # The grid only picks the starts: no gradient flows through it, so none is built.
+        coeffs_g, Q, board_g, x, t, membrane_g = stop_gradient((coeffs, Q, board, x, t, membrane))
+    else:
+        coeffs_g, board_g, membrane_g = coeffs, board, membrane
+    F = field_on_grid(coeffs_g, Q, mode_shapes(board_g, x, n, curvature))
     A = jnp.abs(F)
     if membrane is not None:
         scale, R = Q
-        A = A + (R * scale) ** 2 @ membrane
+        A = A + (R * scale) ** 2 @ membrane_g
     # A plain max over x, then arg-maxima only where needed: a full 2-D argmax is a slow variadic reduction.
     envelope = A.max(axis=0)
     if not refine:
@@ -137,8 +142,16 @@ def find_peak(
         return f, g, H
 
     def refine_one(x0, t0, sign, x_grid, t_grid, f_grid):
+        # Each pass evaluates the pending point, keeps it if it gains, and proposes the next from the best so
+        # far: the start is the first pending point, so the program holds one copy of the evaluation.
         def step(carry, _):
-            x, t, f, (gx, gt), (hxx, hxt, htt), _, radius = carry
+            x, t, f, g, H, gain, radius, x_new, t_new = carry
+            f_new, g_new, H_new = value_grad_hess(x_new, t_new, sign)
+            better = f_new > f
+            keep = lambda a, b: jax.tree_util.tree_map(lambda u, v: jnp.where(better, u, v), a, b)  # noqa: E731
+            x, t, f_kept, (gx, gt), (hxx, hxt, htt) = keep((x_new, t_new, f_new, g_new, H_new), (x, t, f, g, H))
+            gain = jnp.where(better & (f > -jnp.inf), f_new - f, 0.0)
+            radius = jnp.where(better, radius, 0.5 * radius)
             det = hxx * htt - hxt**2
             concave = (hxx < 0) & (det > 0)
             det_safe = jnp.where(concave, det, 1.0)
@@ -156,20 +169,16 @@ def find_peak(
             shrink = jnp.minimum(1.0, radius / jnp.maximum(jnp.maximum(jnp.abs(ux), jnp.abs(ut)), 1e-30))
             x_new = jnp.clip(x + shrink * ux * cell_x, 0.0, length_c)
             t_new = jnp.clip(t + shrink * ut * cell_t, 0.0, window_c)
-            f_new, g_new, H_new = value_grad_hess(x_new, t_new, sign)
-            better = f_new > f
-            keep = lambda a, b: jax.tree_util.tree_map(lambda u, v: jnp.where(better, u, v), a, b)  # noqa: E731
-            new = keep((x_new, t_new, f_new, g_new, H_new), carry[:5])
-            return (*new, jnp.where(better, f_new - f, 0.0), jnp.where(better, radius, 0.5 * radius)), None
+            return (x, t, f_kept, (gx, gt), (hxx, hxt, htt), gain, radius, x_new, t_new), None
 
-        f0, g0, H0 = value_grad_hess(x0, t0, sign)
-        carry = (x0, t0, f0, g0, H0, jnp.zeros_like(f0), jnp.ones_like(f0))
+        zero = jnp.zeros_like(x0)
+        carry = (x0, t0, jnp.full_like(x0, -jnp.inf), (zero, zero), (zero, zero, zero), zero, jnp.ones_like(x0), x0, t0)
         if newton_steps <= 2:  # unrolled in Python: XLA fuses across the steps (scan's unroll does not)
-            for _ in range(newton_steps):
+            for _ in range(newton_steps + 1):
                 carry, _ = step(carry, None)
         else:  # a loop: short compile times for the interactive path's many steps
-            carry, _ = jax.lax.scan(step, carry, None, length=newton_steps)
-        x, t, f, _, _, gain, _ = carry
+            carry, _ = jax.lax.scan(step, carry, None, length=newton_steps + 1)
+        x, t, f, _, _, gain = carry[:6]
         # Never below the grid point it started from (a poor parabolic start can lie lower).
         grid_wins = f_grid > f
         x, t, f = jnp.where(grid_wins, x_grid, x), jnp.where(grid_wins, t_grid, t), jnp.maximum(f, f_grid)

@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 import beamdrop_jax as bd
 from beamdrop_jax._integrate import solve_modes
@@ -67,6 +68,47 @@ def test_closed_form_modal_history_equals_diffrax():
     for t in np.linspace(0.0, 0.01, 23):
         closed = beta * bd.unit_response(t, omega, 0.02, 4e-4)
         np.testing.assert_allclose(modes(t), closed, rtol=1e-7, atol=1e-10 * float(jnp.abs(closed).max() + 1e-12))
+
+
+def _duhamel(t, omega, zeta, tau, order):
+    """d^order/dt^order of the unit response by quadrature of the Duhamel integral (h(0) = 0, h'(0) = 1)."""
+    from scipy.integrate import quad
+
+    wd = omega * math.sqrt(1.0 - zeta**2)
+
+    def h(u):  # impulse response and its first two derivatives
+        e, s, c = math.exp(-zeta * omega * u), math.sin(wd * u), math.cos(wd * u)
+        return (e * s / wd, e * (c - zeta * omega * s / wd),
+                e * ((zeta * omega) ** 2 * s / wd - 2 * zeta * omega * c - wd * s))[order]
+
+    def a(s):
+        return math.pi / (2 * tau) * math.sin(math.pi * s / tau) if s <= tau else 0.0
+
+    T = min(t, tau)
+    value = quad(lambda s: h(t - s) * a(s), 0.0, T, limit=500, epsabs=0.0, epsrel=1e-13)[0]
+    return value + (a(t) if order == 2 else 0.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    log_tau=st.floats(-5.0, -2.0),
+    ratio=st.one_of(st.just(1.0), st.floats(0.999, 1.001), st.floats(0.01, 100.0)),
+    zeta=st.one_of(st.just(0.0), st.floats(1e-4, 0.3)),
+    phase=st.floats(0.0, 3.0),
+)
+def test_unit_response_and_its_jet_equal_the_duhamel_integral(log_tau, ratio, zeta, phase):
+    # omega = ratio * pi / tau: ratio 1 is exact resonance of an undamped mode with the pulse, where the closed
+    # form switches to its series; the quadrature knows nothing of that.
+    tau = 10.0**log_tau
+    omega = ratio * math.pi / tau
+    t = phase * tau
+    got = bd._board.unit_response_jet(jnp.asarray(t), omega, zeta, tau) if t > 0 else None
+    scale = (1 / omega, 1.0, omega)  # the size of q, q', q'' after a unit velocity change
+    value = float(bd.unit_response(t, omega, zeta, tau))
+    assert abs(value - _duhamel(t, omega, zeta, tau, 0)) <= 1e-9 * scale[0]
+    if got is not None:
+        for order in range(3):
+            assert abs(float(got[order]) - _duhamel(t, omega, zeta, tau, order)) <= 1e-8 * scale[order], order
 
 
 def test_half_sine_tends_to_impulse():
