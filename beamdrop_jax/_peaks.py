@@ -307,30 +307,34 @@ def find_plate_peak(
         return f0, g, H
 
     def refine_one(z0, f_grid):
+        # Each pass evaluates the pending point, keeps it if it gains, and proposes the next from the best so
+        # far: the start is the first pending point, so the program holds one copy of the evaluation.
         def step(carry, _):
-            z, f, g, H, _, radius = carry
-            # Coordinates on a bound with the measure rising outwards stay there (a constrained maximum).
-            held = ((z <= lo) & (g < 0)) | ((z >= hi) & (g > 0))
-            g = jnp.where(held, 0.0, g)
-            H = jnp.where(held[:, None] | held[None, :], -jnp.eye(3, dtype=H.dtype), H)
-            # Newton along the Hessian's concave directions, half a cell uphill along the others (none where the
-            # measure is flat: a plate bent uniformly across its width).
-            w, V = jnp.linalg.eigh(H)
-            gv = V.T @ g
-            uphill = 0.5 * jnp.sign(gv) * (jnp.abs(gv) > 1e-9 * jnp.abs(f))
-            u = V @ jnp.where(w < 0, -gv / jnp.where(w < 0, w, -1.0), uphill)
-            u = u * jnp.minimum(1.0, radius / jnp.maximum(jnp.max(jnp.abs(u)), 1e-30))
-            z_new = project(z + u)
+            z, f, g, H, _, radius, z_new = carry
             f_new, g_new, H_new = derivatives(z_new)
             better = f_new > f
             keep = lambda a, b: jax.tree_util.tree_map(lambda u, v: jnp.where(better, u, v), a, b)  # noqa: E731
-            new = keep((z_new, f_new, g_new, H_new), (z, f, g, H))
-            return (*new, jnp.where(better, f_new - f, 0.0), jnp.where(better, radius, 0.5 * radius)), None
+            z, f_kept, g, H = keep((z_new, f_new, g_new, H_new), (z, f, g, H))
+            gain = jnp.where(better & (f > -jnp.inf), f_new - f, 0.0)
+            radius = jnp.where(better, radius, 0.5 * radius)
+            # Coordinates on a bound with the measure rising outwards stay there (a constrained maximum).
+            held = ((z <= lo) & (g < 0)) | ((z >= hi) & (g > 0))
+            g_free = jnp.where(held, 0.0, g)
+            H_free = jnp.where(held[:, None] | held[None, :], -jnp.eye(3, dtype=H.dtype), H)
+            # Newton along the Hessian's concave directions, half a cell uphill along the others (none where the
+            # measure is flat: a plate bent uniformly across its width).
+            w, V = jnp.linalg.eigh(H_free)
+            gv = V.T @ g_free
+            uphill = 0.5 * jnp.sign(gv) * (jnp.abs(gv) > 1e-9 * jnp.abs(f_kept))
+            u = V @ jnp.where(w < 0, -gv / jnp.where(w < 0, w, -1.0), uphill)
+            u = u * jnp.minimum(1.0, radius / jnp.maximum(jnp.max(jnp.abs(u)), 1e-30))
+            return (z, f_kept, g, H, gain, radius, project(z + u)), None
 
-        carry = (z0, *derivatives(z0), jnp.zeros_like(f_grid), jnp.ones_like(f_grid))
-        if refine and newton_steps:
-            carry, _ = jax.lax.scan(step, carry, None, length=newton_steps)
-        z, f, _, _, gain, _ = carry
+        zero = jnp.zeros_like(f_grid)
+        carry = (z0, jnp.full_like(f_grid, -jnp.inf), jnp.zeros_like(z0), jnp.zeros((3, 3), z0.dtype), zero,
+                 jnp.ones_like(f_grid), z0)
+        carry, _ = jax.lax.scan(step, carry, None, length=(newton_steps if refine else 0) + 1)
+        z, f, _, _, gain = carry[:5]
         grid_wins = ~(f >= f_grid)
         return jnp.where(grid_wins, z0, z), jnp.maximum(f, f_grid), gain
 

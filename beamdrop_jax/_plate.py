@@ -44,14 +44,29 @@ _QUADRATURE = 64  # Gauss-Legendre points per direction: exact for the polynomia
 
 
 def _legendre(xp, s, n: int):
-    """P_j(s), P_j'(s), P_j''(s) for j < n, stacked on a last axis (three-term recurrences)."""
-    one = xp.ones_like(s)
-    p, dp, ddp = [one, s], [0 * s, one], [0 * s, 0 * s]
-    for j in range(1, n - 1):
-        p.append(((2 * j + 1) * s * p[j] - j * p[j - 1]) / (j + 1))
-        dp.append(dp[j - 1] + (2 * j + 1) * p[j])
-        ddp.append(ddp[j - 1] + (2 * j + 1) * dp[j])
-    return tuple(xp.stack(v[:n], axis=-1) for v in (p, dp, ddp))
+    """P_j(s), P_j'(s), P_j''(s) for j < n, stacked on a last axis (three-term recurrences; in JAX one loop, whose
+    program stays small however many terms: unrolled, every evaluation site compiled its own long chain)."""
+    one, zero = xp.ones_like(s), xp.zeros_like(s)
+
+    def step(carry, j):
+        (p0, p1), (dp0, dp1), (ddp0, ddp1) = carry
+        p2 = ((2 * j + 1) * s * p1 - j * p0) / (j + 1)
+        dp2, ddp2 = dp0 + (2 * j + 1) * p1, ddp0 + (2 * j + 1) * dp1
+        return ((p1, p2), (dp1, dp2), (ddp1, ddp2)), (p2, dp2, ddp2)
+
+    carry = ((one, s), (zero, one), (zero, zero))
+    degrees = np.arange(1, max(n - 1, 1), dtype=np.float64)
+    if xp is np:
+        rows = []
+        for j in degrees:
+            carry, row = step(carry, j)
+            rows.append(row)
+        rest = tuple(np.stack(r, axis=-1) for r in zip(*rows)) if rows else (np.zeros(s.shape + (0,)),) * 3
+    else:
+        _, rest = jax.lax.scan(step, carry, jnp.asarray(degrees, dtype=s.dtype))
+        rest = tuple(jnp.moveaxis(r, 0, -1) for r in rest)
+    first = ((one, s), (zero, one), (zero, zero))
+    return tuple(xp.concatenate([xp.stack(f, axis=-1), r], axis=-1)[..., :n] for f, r in zip(first, rest))
 
 
 def _basis_1d(xp, z, n: int, codes: tuple[int, int], sines: bool):

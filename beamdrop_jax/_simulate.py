@@ -568,15 +568,23 @@ def _gauges(plate: Plate, S: _Setup, modes, mask, points) -> Gauges:
         _, a, b, c = (jnp.sum(q * v) for v in modes.shapes(x, y))
         return surface_strain(plate, a, b, c)
 
+    dt = S.t[1] - S.t[0]
+    offsets = jnp.array([-1.0, 0.0, 1.0]) * (dt / 16)
+
     def refine(x, y, t0):
-        f = lambda t: reading(x, y, t)  # noqa: E731
-        def step(t, _):
-            g, h = jax.grad(f)(t), jax.grad(jax.grad(f))(t)
-            dt = S.t[1] - S.t[0]
+        # Newton in t on derivatives from a three-point stencil (one batched evaluation, a small program); each
+        # pass evaluates the pending time and keeps it if it gains.
+        def step(carry, _):
+            t, f, g, h, t_new = carry
+            lo, mid, hi = jax.vmap(lambda s: reading(x, y, s))(t_new + offsets)
+            g_new, h_new = (hi - lo) / (2 * offsets[2]), (hi - 2 * mid + lo) / offsets[2] ** 2
+            better = mid > f
+            t, f, g, h = (jnp.where(better, a, b) for a, b in zip((t_new, mid, g_new, h_new), (t, f, g, h)))
             move = jnp.where(h < 0, -g / jnp.where(h < 0, h, -1.0), 0.0)
-            t_new = jnp.clip(t + jnp.clip(move, -dt, dt), 0.0, S.window)
-            return jnp.where(f(t_new) > f(t), t_new, t), None
-        return jax.lax.scan(step, t0, None, length=4)[0]
+            return (t, f, g, h, jnp.clip(t + jnp.clip(move, -dt, dt), 0.0, S.window)), None
+
+        start = (t0, jnp.full_like(t0, -jnp.inf), jnp.zeros_like(t0), jnp.zeros_like(t0), t0)
+        return jax.lax.scan(step, start, None, length=5)[0][0]
 
     t_peak = jax.lax.stop_gradient(jax.vmap(refine)(gx, gy, S.t[j]))
     peak = jnp.maximum(jax.vmap(reading)(gx, gy, t_peak), strain[jnp.arange(gx.shape[0]), j])
