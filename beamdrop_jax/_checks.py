@@ -49,6 +49,18 @@ def is_concrete(*values) -> bool:
     return not any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(values))
 
 
+def on_host(tree):
+    """A concrete pytree with its arrays as NumPy arrays: eager checks computed on it run as NumPy, where the same
+    expressions on JAX arrays dispatch (and, the first time, compile) one XLA program per operation."""
+    return jax.tree_util.tree_map(np.asarray, tree)
+
+
+def array_module(*values):
+    """`numpy` when every value is a NumPy array or a Python number, else `jax.numpy`."""
+    host = all(isinstance(v, (np.ndarray, np.generic, int, float)) for v in jax.tree_util.tree_leaves(values))
+    return np if host else jnp
+
+
 def _fmt(bound, open_, side):
     if bound is None:
         return ""

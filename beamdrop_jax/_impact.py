@@ -19,6 +19,7 @@ References: Routh (1905); Wang & Mason, "Two-dimensional rigid-body collisions w
 """
 
 import enum
+import functools
 
 import equinox as eqx
 import jax
@@ -26,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._checks import Flag, Range, as_float, combine, flag_if, float_dtype, is_concrete
+from ._checks import Flag, Range, array_module, as_float, combine, flag_if, float_dtype, is_concrete
 
 
 class ImpactMode(enum.IntEnum):
@@ -196,10 +197,11 @@ RESTITUTION = Range(0.0, 1.0)
 
 def _positive_definite(B):
     """Finite, symmetric to round-off, and positive definite (traceable)."""
-    scale = jnp.max(jnp.abs(B))
-    symmetric = jnp.abs(B[0, 1] - B[1, 0]) <= 1e-12 * scale
+    xp = array_module(B)
+    scale = xp.max(xp.abs(B))
+    symmetric = xp.abs(B[0, 1] - B[1, 0]) <= 1e-12 * scale
     det = B[0, 0] * B[1, 1] - B[0, 1] * B[1, 0]
-    return jnp.all(jnp.isfinite(B)) & symmetric & (B[0, 0] > 0) & (det > 0)
+    return xp.all(xp.isfinite(B)) & symmetric & (B[0, 0] > 0) & (det > 0)
 
 
 def _check_eagerly(B, v0, mu, e):
@@ -207,7 +209,7 @@ def _check_eagerly(B, v0, mu, e):
     RESTITUTION.require(e, "restitution")
     if not np.all(np.isfinite(np.asarray(v0))):
         raise ValueError(f"v0 = {np.asarray(v0).tolist()}: the approach velocity (S0, C0) must be finite, m/s")
-    if np.ndim(B) == 2 and not bool(_positive_definite(B)):
+    if np.ndim(B) == 2 and not bool(_positive_definite(np.asarray(B))):
         raise ValueError(f"B = {np.asarray(B).tolist()}: the contact's inverse inertia must be a finite, symmetric, "
                          "positive definite 2 x 2 matrix [[B1, -B3], [-B3, B2]] (B1 > 0, B1 B2 - B3^2 > 0), 1/kg")
 
@@ -246,6 +248,11 @@ def routh_impulse(
         raise ValueError(f"B must have shape (2, 2) and v0 shape (2,); got {B.shape} and {v0.shape}")
     if is_concrete(B, v0, mu, e):
         _check_eagerly(B, v0, mu, e)
+    return _routh(B, v0, mu, e, law)
+
+
+@functools.partial(jax.jit, static_argnums=4)  # one compiled program, not one per operation, when called eagerly
+def _routh(B, v0, mu, e, law: str) -> ImpactResult:
     separating = v0[1] > 0
     # Separating contacts are computed as if C0 = 0 so every intermediate stays finite; the result is zeroed.
     v0_used = jnp.stack([v0[0], jnp.minimum(v0[1], 0.0)])

@@ -17,7 +17,8 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._beam import ENDS, EULER_LOAD
-from ._checks import DEG, Flag, Range, as_float, combine, flag_if, is_concrete, raise_if_flagged, require
+from ._checks import (DEG, Flag, Range, array_module, as_float, combine, flag_if, is_concrete, on_host,
+                      raise_if_flagged, require)
 
 # Angles beyond this many radians (about 1600 turns) are rejected: no drop needs them, and the sine and cosine of
 # larger arguments lose their argument reduction in the fast polynomial the response uses.
@@ -79,7 +80,8 @@ class Housing(eqx.Module):
     def __init__(self, width=0.15, height=0.075, mass=0.18, radius_of_gyration=None):
         _init_fields(self, dict(width=width, height=height, mass=mass))
         if radius_of_gyration is None:
-            radius_of_gyration = jnp.sqrt((self.width**2 + self.height**2) / 12.0)
+            w, h = (on_host(v) if is_concrete(v) else v for v in (self.width, self.height))
+            radius_of_gyration = array_module(w, h).sqrt((w**2 + h**2) / 12.0)
         _init_fields(self, dict(radius_of_gyration=radius_of_gyration))
 
     def __check_init__(self):
@@ -145,7 +147,7 @@ class Board(eqx.Module):
     def __check_init__(self):
         _check_ranges(self)
         if is_concrete(self):
-            require(self.axial_force, "Board.axial_force", -float(jnp.max(self.buckling_force)), lo_open=True,
+            require(self.axial_force, "Board.axial_force", -float(np.max(on_host(self).buckling_force)), lo_open=True,
                     unit="N")
 
     @property
@@ -234,18 +236,20 @@ SECTIONS = {"housing": Housing, "board": Board, "placement": Placement, "drop": 
 
 def board_ends(placement: Placement, length) -> Float[Array, "2 2"]:
     """Board ends A and B (rows) in housing axes from G, m (a leading batch axis carries through)."""
-    angle = jnp.asarray(placement.angle)
-    axis = jnp.stack([jnp.cos(angle), jnp.sin(angle)], axis=-1)
-    half = 0.5 * jnp.asarray(length)[..., None] * axis
-    return jnp.stack([placement.centre - half, placement.centre + half], axis=-2)
+    xp = array_module(placement, length)  # NumPy in eager checks and plots
+    angle = xp.asarray(placement.angle)
+    axis = xp.stack([xp.cos(angle), xp.sin(angle)], axis=-1)
+    half = 0.5 * xp.asarray(length)[..., None] * axis
+    return xp.stack([placement.centre - half, placement.centre + half], axis=-2)
 
 
 def _board_outside(scene) -> jax.Array:
+    xp = array_module(scene)
     ends = board_ends(scene.placement, scene.board.length)
-    half = jnp.stack(jnp.broadcast_arrays(scene.housing.width, scene.housing.height), axis=-1)[..., None, :] / 2
+    half = xp.stack(xp.broadcast_arrays(scene.housing.width, scene.housing.height), axis=-1)[..., None, :] / 2
     # A relative slack absorbs round-off for a board that spans the housing exactly.
-    slack = 1e-9 * jnp.max(half, axis=(-2, -1), keepdims=True)
-    return jnp.any(jnp.abs(ends) > half + slack, axis=(-2, -1))
+    slack = 1e-9 * xp.max(half, axis=(-2, -1), keepdims=True)
+    return xp.any(xp.abs(ends) > half + slack, axis=(-2, -1))
 
 
 class Scene(eqx.Module):
@@ -316,9 +320,12 @@ def _field_at(path: str, scene=None):
 
 
 def _check_fits(scene) -> None:
-    if not (is_concrete(scene) and bool(jnp.any(_board_outside(scene)))):
+    if not is_concrete(scene):
         return
-    ends = np.asarray(board_ends(scene.placement, scene.board.length))
+    scene = on_host(scene)
+    if not np.any(_board_outside(scene)):
+        return
+    ends = board_ends(scene.placement, scene.board.length)
     w, h = (float(np.max(v)) for v in (scene.housing.width, scene.housing.height))
     raise ValueError(
         f"Placement puts the board ends at {np.round(ends.reshape(-1, 2, 2)[0], 6).tolist()} (m, housing axes from "

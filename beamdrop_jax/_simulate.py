@@ -23,7 +23,7 @@ from ._integrate import SOLVERS, solve_modes
 from ._clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
 from ._kinematics import HousingImpact, housing_impact
 from ._motion import HalfSine, Impulse, PulseTrain, Record
-from ._peaks import FieldPeak, field_on_grid, find_peak, find_plate_peak
+from ._peaks import FieldPeak, field_on_grid, find_peak, find_plate_peak, stop_gradient
 from ._plate import Plate, PlateModes, plate_modes, surface_strain, surface_stress
 from ._scene import Board, Scene, check_scene, require_single, scene_flags
 
@@ -383,7 +383,8 @@ def _setup(board: Board, motion, numerics: Numerics, with_check: bool) -> _Setup
     computed = jnp.maximum(used, check) if with_check else used
     modal, failed = _modal_solution(model, motion, numerics, window, (k <= computed).astype(float_dtype()))
     x = jnp.linspace(0.0, 1.0, nx) * board.length
-    Q = modal.grid_factors(t)
+    # With refinement the grid only picks the searches' starts: no gradient flows through it, so none is built.
+    Q = (stop_gradient(modal).grid_factors(jax.lax.stop_gradient(t)) if numerics.refine else modal.grid_factors(t))
     top = jnp.maximum(used, check) if with_check else used
     flags = flag_if(_window_points(model, numerics, top) < MIN_POINTS_PER_PERIOD, Flag.WINDOW_RANGE)
     curvature = jnp.ones(M, dtype=float_dtype()) if isinstance(board, Plate) else curvature_scale(board, M)
