@@ -61,7 +61,7 @@ def _largest(values: Float[Array, " n"], k: int):
 
 
 def find_peak(
-    coeffs: Float[Array, " n"],
+    coeffs: Float[Array, "r n"],
     modal: Callable,
     Q: tuple,
     x: Float[Array, " nx"],
@@ -73,135 +73,155 @@ def find_peak(
     candidates: int = 4,
     newton_steps: int = 6,
     refine: bool = True,
-    membrane: Float[Array, " n"] | None = None,
+    membrane: Float[Array, "r n"] | None = None,
 ) -> FieldPeak:
-    """Peak of |field| (+ sum_k membrane_k q_k^2 when `membrane` is given) with `modal(t) -> q (n,)` the modal
-    coordinates (a pytree callable with `jet(t) -> (q, q', q'')`, e.g. an `eqx.Module`),
-    `Q = modal.grid_factors(t)` on the grid (see `field_on_grid`), and the board's deflection shapes or, with
-    `curvature` (a bool or a traced 0/1), its curvature shapes (`_beam.mode_shapes`)."""
+    """Peaks of |field| (+ sum_k membrane_k q_k^2 when `membrane` is given) for each row of modal coefficients
+    `coeffs` (rows share the modal solution and the grid), with `modal(t) -> q (n,)` the modal coordinates (a
+    pytree callable with `jet(t) -> (q, q', q'')`, e.g. an `eqx.Module`), `Q = modal.grid_factors(t)` on the grid
+    (see `field_on_grid`), and the board's deflection shapes or, where `curvature` (a bool or a 0/1 per row) holds,
+    its curvature shapes (`_beam.mode_shapes`). Returns a `FieldPeak` of arrays (r,).
+
+    The rows' candidates are refined together in one loop over Newton steps (the loop is never itself
+    vmapped: batching a loop re-traces its body, which made most of the tracing time)."""
     n = coeffs.shape[-1]
+    curvature = jnp.broadcast_to(jnp.asarray(curvature), coeffs.shape[:1])
     if refine:
         # The grid only picks the starts: no gradient flows through it, so none is built.
-        coeffs_g, Q, board_g, x, t, membrane_g = stop_gradient((coeffs, Q, board, x, t, membrane))
+        coeffs_g, Q_g, board_g, x_g, t_g, membrane_g = stop_gradient((coeffs, Q, board, x, t, membrane))
     else:
-        coeffs_g, board_g, membrane_g = coeffs, board, membrane
-    F = field_on_grid(coeffs_g, Q, mode_shapes(board_g, x, n, curvature))
-    A = jnp.abs(F)
-    if membrane is not None:
-        scale, R = Q
-        A = A + (R * scale) ** 2 @ membrane_g
-    # A plain max over x, then arg-maxima only where needed: a full 2-D argmax is a slow variadic reduction.
-    envelope = A.max(axis=0)
-    if not refine:
-        # The value by a plain max (where it lies only if asked for: XLA drops the arg-maxima when unused).
-        value = envelope.max()
-        j = envelope.argmax()
-        err = (value - jnp.max(envelope[::2])) / jnp.maximum(value, jnp.finfo(A.dtype).tiny)
-        return FieldPeak(value, x[A[:, j].argmax()], t[j], err)
+        coeffs_g, Q_g, board_g, x_g, t_g, membrane_g = coeffs, Q, board, x, t, membrane
 
-    # Candidates: the largest local maxima in time of the spatial envelope (a lone spike at an end counts).
-    left = jnp.concatenate([jnp.full((1,), -jnp.inf, A.dtype), envelope[:-1]])
-    right = jnp.concatenate([envelope[1:], jnp.full((1,), -jnp.inf, A.dtype)])
-    is_local = (envelope >= left) & (envelope >= right)
-    k_cand = min(candidates, envelope.shape[0])
-    idx = _largest(jnp.where(is_local, envelope, -jnp.inf), k_cand)
-    where_x = A[:, idx].argmax(axis=0)
-    sign0 = jnp.sign(F[where_x, idx])
-    cell_x, cell_t = x[1] - x[0], t[1] - t[0]
+    def on_grid(c, m, cv):
+        F = field_on_grid(c, Q_g, mode_shapes(board_g, x_g, n, cv))
+        A = jnp.abs(F)
+        if m is not None:
+            scale, R = Q_g
+            A = A + (R * scale) ** 2 @ m
+        # A plain max over x, then arg-maxima only where needed: a full 2-D argmax is a slow variadic reduction.
+        return F, A, A.max(axis=0)
+
+    if not refine:
+        def coarse(c, m, cv):
+            # The value by a plain max (where it lies only if asked for: XLA drops the arg-maxima when unused).
+            _, A, envelope = on_grid(c, m, cv)
+            value, j = envelope.max(), envelope.argmax()
+            err = (value - jnp.max(envelope[::2])) / jnp.maximum(value, jnp.finfo(A.dtype).tiny)
+            return FieldPeak(value, x_g[A[:, j].argmax()], t_g[j], err)
+
+        return jax.vmap(coarse)(coeffs_g, membrane_g, curvature)
+
+    cell_x, cell_t = x_g[1] - x_g[0], t_g[1] - t_g[0]
 
     def vertex(lo, mid, hi):
         # Offset (cells) of the parabola through three neighbouring grid values: a start inside the right cell.
         curv = lo - 2 * mid + hi
         return jnp.clip(0.5 * (lo - hi) / jnp.where(curv < 0, curv, -1.0), -0.5, 0.5) * (curv < 0)
 
-    nx, nt = A.shape
-    ix_lo, ix_hi = jnp.maximum(where_x - 1, 0), jnp.minimum(where_x + 1, nx - 1)
-    it_lo, it_hi = jnp.maximum(idx - 1, 0), jnp.minimum(idx + 1, nt - 1)
-    mid = A[where_x, idx]
-    # (Clipped: a peak at a clamped end has its vertex outside the board.)
-    x0 = jnp.clip(x[where_x] + cell_x * vertex(A[ix_lo, idx], mid, A[ix_hi, idx]), x[0], x[-1])
-    t0 = jnp.clip(t[idx] + cell_t * vertex(A[where_x, it_lo], mid, A[where_x, it_hi]), t[0], t[-1])
+    def starts(c, m, cv):
+        # Candidates: the largest local maxima in time of the spatial envelope (a lone spike at an end counts).
+        F, A, envelope = on_grid(c, m, cv)
+        left = jnp.concatenate([jnp.full((1,), -jnp.inf, A.dtype), envelope[:-1]])
+        right = jnp.concatenate([envelope[1:], jnp.full((1,), -jnp.inf, A.dtype)])
+        is_local = (envelope >= left) & (envelope >= right)
+        idx = _largest(jnp.where(is_local, envelope, -jnp.inf), min(candidates, envelope.shape[0]))
+        where_x = A[:, idx].argmax(axis=0)
+        nx, nt = A.shape
+        ix_lo, ix_hi = jnp.maximum(where_x - 1, 0), jnp.minimum(where_x + 1, nx - 1)
+        it_lo, it_hi = jnp.maximum(idx - 1, 0), jnp.minimum(idx + 1, nt - 1)
+        mid = A[where_x, idx]
+        # (Clipped: a peak at a clamped end has its vertex outside the board.)
+        x0 = jnp.clip(x_g[where_x] + cell_x * vertex(A[ix_lo, idx], mid, A[ix_hi, idx]), x_g[0], x_g[-1])
+        t0 = jnp.clip(t_g[idx] + cell_t * vertex(A[where_x, it_lo], mid, A[where_x, it_hi]), t_g[0], t_g[-1])
+        return x0, t0, jnp.sign(F[where_x, idx]), x_g[where_x], t_g[idx], mid
+
+    rows, k = coeffs.shape[0], min(candidates, t.shape[0])
+    flat = lambda v: v.reshape(rows * k)  # noqa: E731 - (rows, candidates) -> one axis
+    x0, t0, sign, x_grid, t_grid, f_grid = (flat(v) for v in jax.vmap(starts)(coeffs_g, membrane_g, curvature))
+    of_row = jnp.repeat(jnp.arange(rows), k)
 
     # The search itself is not differentiated: only the final evaluation at the maximiser is.
     coeffs_c, board_c, window_c, modal_c, membrane_c = stop_gradient((coeffs, board, window, modal, membrane))
+    per_candidate = (coeffs_c[of_row], None if membrane is None else membrane_c[of_row], curvature[of_row], sign)
     length_c = board_c.length
 
-    def value_grad_hess(x, t, sign):
+    def value_grad_hess(x, t, c, m, cv, sign):
         # Field derivatives in closed form in x; q, q', q'' from the modal solution's own jet in t. Scalars, not
         # stacked arrays: tiny stacks and transposes inside the loop cost more than the arithmetic under vmap.
         q, dq, ddq = modal_c.jet(t)
-        sn, dsn, ddsn = mode_shapes(board_c, x, n, curvature, (0, 1, 2))
-        a, b = sign * coeffs_c * q, sign * coeffs_c * dq
+        sn, dsn, ddsn = mode_shapes(board_c, x, n, cv, (0, 1, 2))
+        a, b = sign * c * q, sign * c * dq
         f = jnp.sum(a * sn)
         g = (jnp.sum(a * dsn), jnp.sum(b * sn))
-        H = (jnp.sum(a * ddsn), jnp.sum(b * dsn), jnp.sum(sign * coeffs_c * ddq * sn))
-        if membrane is not None:
-            f = f + jnp.sum(membrane_c * q * q)
-            g = (g[0], g[1] + 2 * jnp.sum(membrane_c * q * dq))
-            H = (H[0], H[1], H[2] + 2 * jnp.sum(membrane_c * (dq * dq + q * ddq)))
+        H = (jnp.sum(a * ddsn), jnp.sum(b * dsn), jnp.sum(sign * c * ddq * sn))
+        if m is not None:
+            f = f + jnp.sum(m * q * q)
+            g = (g[0], g[1] + 2 * jnp.sum(m * q * dq))
+            H = (H[0], H[1], H[2] + 2 * jnp.sum(m * (dq * dq + q * ddq)))
         return f, g, H
 
-    def refine_one(x0, t0, sign, x_grid, t_grid, f_grid):
-        # Each pass evaluates the pending point, keeps it if it gains, and proposes the next from the best so
-        # far: the start is the first pending point, so the program holds one copy of the evaluation.
-        def step(carry, _):
-            x, t, f, g, H, gain, radius, x_new, t_new = carry
-            f_new, g_new, H_new = value_grad_hess(x_new, t_new, sign)
-            better = f_new > f
-            keep = lambda a, b: jax.tree_util.tree_map(lambda u, v: jnp.where(better, u, v), a, b)  # noqa: E731
-            x, t, f_kept, (gx, gt), (hxx, hxt, htt) = keep((x_new, t_new, f_new, g_new, H_new), (x, t, f, g, H))
-            gain = jnp.where(better & (f > -jnp.inf), f_new - f, 0.0)
-            radius = jnp.where(better, radius, 0.5 * radius)
-            det = hxx * htt - hxt**2
-            concave = (hxx < 0) & (det > 0)
-            det_safe = jnp.where(concave, det, 1.0)
-            # In grid cells: a Newton step where the field is concave, else half a cell uphill; scaled as a whole
-            # (not clipped per axis, which turns steps along a curved ridge off it) into the trust radius,
-            # which halves after a step that does not gain.
-            ux = jnp.where(concave, -(htt * gx - hxt * gt) / det_safe / cell_x, 0.5 * jnp.sign(gx))
-            ut = jnp.where(concave, -(hxx * gt - hxt * gx) / det_safe / cell_t, 0.5 * jnp.sign(gt))
-            # On an end of the board with the field rising outwards (a clamp's peak) the maximum is constrained
-            # there: search in t alone, so that the peak is stationary in t (its gradient then holds).
-            edge = ((x <= 0.0) & (gx < 0)) | ((x >= length_c) & (gx > 0))
-            falls = htt < 0
-            ut_edge = jnp.where(falls, -gt / jnp.where(falls, htt, 1.0) / cell_t, 0.5 * jnp.sign(gt))
-            ux, ut = jnp.where(edge, 0.0, ux), jnp.where(edge, ut_edge, ut)
-            shrink = jnp.minimum(1.0, radius / jnp.maximum(jnp.maximum(jnp.abs(ux), jnp.abs(ut)), 1e-30))
-            x_new = jnp.clip(x + shrink * ux * cell_x, 0.0, length_c)
-            t_new = jnp.clip(t + shrink * ut * cell_t, 0.0, window_c)
-            return (x, t, f_kept, (gx, gt), (hxx, hxt, htt), gain, radius, x_new, t_new), None
+    def step_one(carry, c, m, cv, sign):
+        # Evaluates the pending point, keeps it if it gains, and proposes the next from the best so far: the
+        # start is the first pending point, so the program holds one copy of the evaluation.
+        x, t, f, g, H, gain, radius, x_new, t_new = carry
+        f_new, g_new, H_new = value_grad_hess(x_new, t_new, c, m, cv, sign)
+        better = f_new > f
+        keep = lambda a, b: jax.tree_util.tree_map(lambda u, v: jnp.where(better, u, v), a, b)  # noqa: E731
+        x, t, f_kept, (gx, gt), (hxx, hxt, htt) = keep((x_new, t_new, f_new, g_new, H_new), (x, t, f, g, H))
+        gain = jnp.where(better & (f > -jnp.inf), f_new - f, 0.0)
+        radius = jnp.where(better, radius, 0.5 * radius)
+        det = hxx * htt - hxt**2
+        concave = (hxx < 0) & (det > 0)
+        det_safe = jnp.where(concave, det, 1.0)
+        # In grid cells: a Newton step where the field is concave, else half a cell uphill; scaled as a whole
+        # (not clipped per axis, which turns steps along a curved ridge off it) into the trust radius,
+        # which halves after a step that does not gain.
+        ux = jnp.where(concave, -(htt * gx - hxt * gt) / det_safe / cell_x, 0.5 * jnp.sign(gx))
+        ut = jnp.where(concave, -(hxx * gt - hxt * gx) / det_safe / cell_t, 0.5 * jnp.sign(gt))
+        # On an end of the board with the field rising outwards (a clamp's peak) the maximum is constrained
+        # there: search in t alone, so that the peak is stationary in t (its gradient then holds).
+        edge = ((x <= 0.0) & (gx < 0)) | ((x >= length_c) & (gx > 0))
+        falls = htt < 0
+        ut_edge = jnp.where(falls, -gt / jnp.where(falls, htt, 1.0) / cell_t, 0.5 * jnp.sign(gt))
+        ux, ut = jnp.where(edge, 0.0, ux), jnp.where(edge, ut_edge, ut)
+        shrink = jnp.minimum(1.0, radius / jnp.maximum(jnp.maximum(jnp.abs(ux), jnp.abs(ut)), 1e-30))
+        x_new = jnp.clip(x + shrink * ux * cell_x, 0.0, length_c)
+        t_new = jnp.clip(t + shrink * ut * cell_t, 0.0, window_c)
+        return x, t, f_kept, (gx, gt), (hxx, hxt, htt), gain, radius, x_new, t_new
 
-        zero = jnp.zeros_like(x0)
-        carry = (x0, t0, jnp.full_like(x0, -jnp.inf), (zero, zero), (zero, zero, zero), zero, jnp.ones_like(x0), x0, t0)
-        if newton_steps <= 2:  # unrolled in Python: XLA fuses across the steps (scan's unroll does not)
-            for _ in range(newton_steps + 1):
-                carry, _ = step(carry, None)
-        else:  # a loop: short compile times for the interactive path's many steps
-            carry, _ = jax.lax.scan(step, carry, None, length=newton_steps + 1)
-        x, t, f, _, _, gain = carry[:6]
-        # Never below the grid point it started from (a poor parabolic start can lie lower).
-        grid_wins = f_grid > f
-        x, t, f = jnp.where(grid_wins, x_grid, x), jnp.where(grid_wins, t_grid, t), jnp.maximum(f, f_grid)
-        return jnp.stack([x, t]), f, gain
+    def step(carry, _):
+        return jax.vmap(step_one)(carry, *per_candidate), None
 
-    starts = (x0, t0, sign0, x[where_x], t[idx], A[where_x, idx])
-    p_all, f_all, gain_all = jax.vmap(refine_one)(*stop_gradient(starts))
-    # Of candidates that tie (an undamped board repeats its peak every period, mirror images tie exactly), report
-    # the earliest: the first time the board sees that stress.
-    tied = f_all >= jnp.max(f_all) * (1.0 - 1e-9)
-    best = jnp.argmin(jnp.where(tied, p_all[:, 1], jnp.inf))
-    p_best = jax.lax.stop_gradient(p_all[best])
-    # A peak on end B (a clamp) moves with the board's length: keep that dependence too.
-    x_star = jnp.where(p_best[0] >= length_c * (1.0 - 1e-9), board.length, p_best[0])
-    # A peak at the window's end moves with the window (which depends on the board): keep that dependence.
-    at_end = p_best[1] >= window * (1.0 - 1e-9)
-    t_star = jnp.where(at_end, window, p_best[1])
-    q = modal(t_star)
-    value = jnp.abs(jnp.sum(coeffs * q * mode_shapes(board, x_star, n, curvature)))
-    if membrane is not None:
-        value = value + jnp.sum(membrane * q * q)
-    err = jax.lax.stop_gradient(gain_all[best] / jnp.maximum(f_all[best], jnp.finfo(A.dtype).tiny))
-    return FieldPeak(value, x_star, t_star, err)
+    zero = jnp.zeros_like(x0)
+    carry = (x0, t0, jnp.full_like(x0, -jnp.inf), (zero, zero), (zero, zero, zero), zero, jnp.ones_like(x0), x0, t0)
+    if newton_steps <= 2:  # unrolled in Python: XLA fuses across the steps (scan's unroll does not)
+        for _ in range(newton_steps + 1):
+            carry, _ = step(carry, None)
+    else:  # a loop: short compile times for the interactive path's many steps
+        carry, _ = jax.lax.scan(step, carry, None, length=newton_steps + 1)
+    x_r, t_r, f_r, _, _, gain = carry[:6]
+    # Never below the grid point it started from (a poor parabolic start can lie lower).
+    grid_wins = f_grid > f_r
+    x_r, t_r, f_r = jnp.where(grid_wins, x_grid, x_r), jnp.where(grid_wins, t_grid, t_r), jnp.maximum(f_r, f_grid)
+    unflat = lambda v: v.reshape(rows, k)  # noqa: E731
+
+    def finish(x_all, t_all, f_all, gain_all, c, m, cv):
+        # Of candidates that tie (an undamped board repeats its peak every period, mirror images tie exactly),
+        # report the earliest: the first time the board sees that stress.
+        tied = f_all >= jnp.max(f_all) * (1.0 - 1e-9)
+        best = jnp.argmin(jnp.where(tied, t_all, jnp.inf))
+        x_best, t_best = jax.lax.stop_gradient((x_all[best], t_all[best]))
+        # A peak on end B (a clamp) moves with the board's length: keep that dependence too.
+        x_star = jnp.where(x_best >= length_c * (1.0 - 1e-9), board.length, x_best)
+        # A peak at the window's end moves with the window (which depends on the board): keep that dependence.
+        t_star = jnp.where(t_best >= window * (1.0 - 1e-9), window, t_best)
+        q = modal(t_star)
+        value = jnp.abs(jnp.sum(c * q * mode_shapes(board, x_star, n, cv)))
+        if m is not None:
+            value = value + jnp.sum(m * q * q)
+        err = jax.lax.stop_gradient(gain_all[best] / jnp.maximum(f_all[best], jnp.finfo(f_all.dtype).tiny))
+        return FieldPeak(value, x_star, t_star, err)
+
+    return jax.vmap(finish)(unflat(x_r), unflat(t_r), unflat(f_r), unflat(gain), coeffs, membrane, curvature)
 
 
 class PlatePeak(eqx.Module):

@@ -405,12 +405,9 @@ def _search(setup: _Setup, board: Board, numerics: Numerics, coeffs, membrane=No
     """Peaks of the fields with modal coefficients `coeffs` (rows; plus the membrane term of each row when
     `membrane` is given) over the board's curvature shapes (rows where `curvature`, a tuple of bools, is True) or
     deflection shapes, in one batched search (one compiled copy)."""
-    search = dict(candidates=numerics.candidates, newton_steps=numerics.newton_steps, refine=numerics.refine)
-    curvature = jnp.asarray(curvature)
-    return jax.vmap(
-        lambda c, m, cv: find_peak(c, setup.modal, setup.Q, setup.x, setup.t, board, setup.window, curvature=cv,
-                                   membrane=m, **search)
-    )(coeffs, membrane, curvature)
+    return find_peak(coeffs, setup.modal, setup.Q, setup.x, setup.t, board, setup.window, curvature=curvature,
+                     membrane=membrane, candidates=numerics.candidates, newton_steps=numerics.newton_steps,
+                     refine=numerics.refine)
 
 
 def _gauge_points(gauges):
