@@ -298,7 +298,7 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     add("peer: numpy superposed", f"given table, {big} drops", _median_time(numpy_superposed, whole_repeats) / big,
         numpy_superposed_peak_stress(scene, samples, table))
 
-    n_scipy = min(n, 2 if tiny else 8 if quick else 32)
+    n_scipy = min(n, 1 if tiny else 8 if quick else 32)
     sub = jax.tree_util.tree_map(lambda v, a: v if a is None else v[:n_scipy], drops, axes)
     jumps = jax.vmap(_support_jumps, in_axes=(axes,))(sub)
     for method in ("RK45", "Radau"):
