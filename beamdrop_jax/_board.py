@@ -34,8 +34,8 @@ def _response_phasor(t, omega, zeta, duration):
     """Z(t), lambda, omega_d and the pulse's switch, with the unit response q = Im(Z) / omega_d.
 
     For the half-sine, Z = (pi / (2 tau)) e^{lam (t - T)} I(T), T = min(t, tau), with
-    I(T) = int_0^T e^{lam (T - s)} sin(Omega s) ds = (Omega T e^{i Omega T} phi(eps T) - sin(Omega T)) / (lam + i Omega),
-    eps = lam - i Omega, phi(w) = (e^w - 1) / w: regular at resonance (eps = 0), where the textbook form
+    I(T) = int_0^T e^{lam (T - s)} sin(Omega s) ds
+         = (Omega T e^{i Omega T} phi(eps T) - sin(Omega T)) / (lam + i Omega), eps = lam - i Omega, phi(w) = (e^w - 1) / w: regular at resonance (eps = 0), where the textbook form
     (Omega e^{lam T} - lam sin - Omega cos) / (lam^2 + Omega^2) cancels; lam + i Omega never vanishes."""
     t = jnp.asarray(t, dtype=float_dtype())
     omega = jnp.asarray(omega)

@@ -87,8 +87,9 @@ def _suggest(word: str, choices) -> str:
     return f"did you mean {close[0]!r}? " if close else ""
 
 
-def _section(section: str, table, source: str):
-    """One section built from its table, each value checked for type and range, every required key there."""
+def _section(section: str, table, source: str, hint: str | None = None):
+    """One section built from its table, each value checked for type and range, every required key there (`hint`:
+    how to give them, when the generic advice does not apply)."""
     where = f"{source}: [{section}]"
     if not isinstance(table, dict):
         raise ValueError(f"{where} must be a table of keys, got {table!r}")
@@ -129,14 +130,14 @@ def _section(section: str, table, source: str):
         valid.require(number, shown)
         kwargs[name] = number * DEG if name != key else number
     _require_all(where, [repr(k) for k in keys
-                         if k not in table and (section, k.removesuffix("_deg")) not in OPTIONAL_KEYS], "key")
+                         if k not in table and (section, k.removesuffix("_deg")) not in OPTIONAL_KEYS], "key", hint)
     return _build(where, cls, kwargs)
 
 
-def _require_all(where: str, missing: list[str], what: str) -> None:
+def _require_all(where: str, missing: list[str], what: str, hint: str | None = None) -> None:
     if missing:
-        raise ValueError(f"{where}: missing {', '.join(missing)} (give every {what}, or start the file with "
-                         "extends = \"default\" to change only some)")
+        hint = hint or f"give every {what}, or start the file with extends = \"default\" to change only some"
+        raise ValueError(f"{where}: missing {', '.join(missing)} ({hint})")
 
 
 def _build(where: str, cls, kwargs: dict):
@@ -147,8 +148,9 @@ def _build(where: str, cls, kwargs: dict):
         raise ValueError(f"{where}: {err}") from None
 
 
-def scene_from_dict(data: dict, source: str = "scene") -> Scene:
-    """Build a scene from a TOML-shaped dict (see the module notes); `source` names it in errors."""
+def _extended(data: dict, source: str, hints: dict) -> dict:
+    """`data` with the scene it extends (and what that extends) merged under it; `hints` gets, per section that
+    replaces the base's board of the other kind, how to fill it."""
     data = dict(data)
     extends = data.pop("extends", None)
     unknown = [k for k in data if k not in FILE_SECTIONS]
@@ -157,29 +159,39 @@ def scene_from_dict(data: dict, source: str = "scene") -> Scene:
                          f"valid sections: {', '.join(FILE_SECTIONS)} (and a top-level extends = \"SCENE\")")
     if "board" in data and "plate" in data:
         raise ValueError(f"{source}: give [board] (a beam) or [plate], not both")
-    if extends is not None:
-        if not isinstance(extends, str) or extends not in embedded_scenes():
-            raise ValueError(f"{source}: extends = {extends!r}; valid: one of the embedded scenes "
-                             f"{', '.join(embedded_scenes())}")
-        base = _read_toml(_scene_path(extends), extends)
-        for given, other in (("plate", "board"), ("board", "plate")):
-            if given in data:  # the file's board replaces the base's, beam or plate
-                base.pop(other, None)
-        for section, table in data.items():
-            if not isinstance(table, dict):
-                raise ValueError(f"{source}: [{section}] must be a table of keys, got {table!r}")
-            merged = dict(base.get(section, {}))
-            for key in table:
-                # A key given in the file replaces the base's, in whichever unit the file uses.
-                merged.pop(key.removesuffix("_deg") + "_deg", None)
-                merged.pop(key.removesuffix("_deg"), None)
-            merged.update(table)
-            base[section] = merged
-        data = base
+    if extends is None:
+        return data
+    if not isinstance(extends, str) or extends not in embedded_scenes():
+        raise ValueError(f"{source}: extends = {extends!r}; valid: one of the embedded scenes "
+                         f"{', '.join(embedded_scenes())}")
+    base = _extended(_read_toml(_scene_path(extends), extends), extends, {})
+    for given, other in (("plate", "board"), ("board", "plate")):
+        if given in data and other in base:  # the file's board replaces the base's, beam or plate
+            base.pop(other)
+            hints[given] = (f"the {extends!r} scene's board is a [{other}], which a [{given}] replaces whole: "
+                            f"give every [{given}] key")
+    for section, table in data.items():
+        if not isinstance(table, dict):
+            raise ValueError(f"{source}: [{section}] must be a table of keys, got {table!r}")
+        merged = dict(base.get(section, {}))
+        for key in table:
+            # A key given in the file replaces the base's, in whichever unit the file uses.
+            merged.pop(key.removesuffix("_deg") + "_deg", None)
+            merged.pop(key.removesuffix("_deg"), None)
+        merged.update(table)
+        base[section] = merged
+    return base
+
+
+def scene_from_dict(data: dict, source: str = "scene") -> Scene:
+    """Build a scene from a TOML-shaped dict (see the module notes); `source` names it in errors."""
+    hints = {}
+    data = _extended(data, source, hints)
     # The sections that are there first: a typo in one explains more than the sections that are missing.
-    parts = {section: _section(section, data[section], source) for section in SECTIONS if section in data}
+    parts = {section: _section(section, data[section], source, hints.get(section)) for section in SECTIONS
+             if section in data}
     if "plate" in data:
-        parts["board"] = _section("plate", data["plate"], source)
+        parts["board"] = _section("plate", data["plate"], source, hints.get("plate"))
     _require_all(source, [f"section [{s}]" for s in SECTIONS if s not in parts], "section")
     return _build(source, Scene, parts)
 

@@ -507,7 +507,7 @@ def _setup_jax(args):
     if getattr(args, "scene", None):
         _scene(args)  # a wrong scene file is reported before any word on compiling
     if args.no_cache or os.environ.get("BEAMDROP_NO_CACHE", "") not in ("", "0"):
-        print("beamdrop: compiling (the compilation cache is off; about 10 s)", file=sys.stderr)
+        print("beamdrop: compiling (the compilation cache is off; 5-10 s)", file=sys.stderr)
         return None
     cache = _cache_dir()
     try:
@@ -521,7 +521,7 @@ def _setup_jax(args):
     key = hashlib.sha1(repr((_version(), jax.__version__, settings)).encode()).hexdigest()[:16]
     stamp = cache / f"compiled-{key}"
     if not stamp.exists():
-        print(f"beamdrop: compiling (first run with these settings, about 10 s; kept in {cache} for later runs)",
+        print(f"beamdrop: compiling (first run with these settings, 5-10 s; kept in {cache} for later runs)",
               file=sys.stderr)
     return stamp
 

@@ -144,6 +144,23 @@ def random_scenes(n, seed=0):
     return batch.replace(**updates)
 
 
+def test_a_file_can_extend_a_scene_that_extends_another(tmp_path):
+    # jesd22-board extends jedec: a file extending jesd22-board gets both, and changes only what it gives.
+    jesd = bd.load_scene("jesd22-board")
+    thicker = tmp_path / "thicker.toml"
+    thicker.write_text('extends = "jesd22-board"\n[plate]\nthickness = 1.2e-3\n[drop]\nheight = 1.0\n')
+    scene = bd.load_scene(thicker)
+    assert float(scene.board.thickness) == 1.2e-3 and float(scene.drop.height) == 1.0
+    np.testing.assert_array_equal(scene.board.mounts, jesd.board.mounts)
+    assert scene.board.edges == jesd.board.edges and float(scene.housing.mass) == float(jesd.housing.mass)
+    # A [board] (a beam) replaces the base's [plate] whole, so every key is needed, and the error says why.
+    beam = tmp_path / "beam.toml"
+    beam.write_text('extends = "jesd22-board"\n[board]\nlength = 0.1\n')
+    with pytest.raises(ValueError, match=r"\[board\]: missing 'thickness'.*board is a \[plate\], which a \[board\] "
+                                         r"replaces whole: give every \[board\] key"):
+        bd.load_scene(beam)
+
+
 def test_vmap_over_scenes_equals_loop():
     n = 1000
     batch = random_scenes(n)
