@@ -1,5 +1,9 @@
 import os
+import subprocess
+import sys
 import tempfile
+
+import pytest
 
 # One persistent compilation cache for the test workers, the notebook kernels they start and the CLI runs inside
 # them: identical programs compile once per run instead of once per process. A cache only: a cold one works too.
@@ -7,6 +11,40 @@ _cache = os.path.join(tempfile.gettempdir(), f"beamdrop-tests-xla-{os.getuid()}"
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", _cache)
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 os.environ.setdefault("BEAMDROP_CACHE_DIR", _cache)
+
+
+def _faster_compiles():
+    """XLA flags for a test run: the tests are mostly compiling (2 cores, hundreds of programs run once or a few
+    times), so compile with XLA's classic CPU emitters and without LLVM's optimisation passes (programs compile
+    2-3x faster and run up to 3x slower; results agree to rounding). An unknown flag aborts XLA, so the flags are
+    probed once in a child process; a jaxlib without them runs the tests with its defaults."""
+    flags = "--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=0"
+    if os.environ.get("BEAMDROP_TEST_XLA_FLAGS") is not None:  # decided already (pytest-xdist workers inherit it)
+        return
+    env = dict(os.environ, XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} {flags}".strip(), JAX_PLATFORMS="cpu")
+    probe = subprocess.run([sys.executable, "-c", "import jax.numpy as jnp; jnp.zeros(1).block_until_ready()"],
+                           env=env, capture_output=True, timeout=120)
+    os.environ["BEAMDROP_USER_XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "")
+    if probe.returncode == 0:
+        os.environ["XLA_FLAGS"] = env["XLA_FLAGS"]
+    os.environ["BEAMDROP_TEST_XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "")
+
+
+@pytest.fixture
+def users_compile():
+    """`run(script) -> stdout` of a child Python that compiles the way users' programs do (without the test run's
+    XLA flags): for float32 results, where the compiler's rounding is the thing under test."""
+    return _run_as_users_compile
+
+
+def _run_as_users_compile(script: str) -> str:
+    env = dict(os.environ, XLA_FLAGS=os.environ.get("BEAMDROP_USER_XLA_FLAGS", ""))
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout
+
+
+_faster_compiles()
 
 import jax  # noqa: E402
 
