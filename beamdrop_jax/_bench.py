@@ -264,7 +264,7 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
         add("closed_form f32", label, sec, vals)
     # Superposed: errors on the same drops; time per drop of whole `montecarlo` calls (table build, sampling and
     # transfers included) on many drops, the way it is used.
-    big = 4096 if tiny else 2**20
+    big = n if tiny else 2**20  # tiny: the error run's own program, timed again
     whole_repeats = 1 if tiny else 7  # whole calls take ~0.1 s; their time varies by +-15 % from call to call
     sup = montecarlo(scene, n, key, progress=False, superpose=True)
     sec = _median_time(lambda: montecarlo(scene, big, key, progress=False, superpose=True), whole_repeats) / big

@@ -67,20 +67,31 @@ def unconstrained_from_placement(scene: Scene, placement: Placement, margin=0.0)
     return jnp.stack([b1, b2, a])
 
 
-def risk(values: Float[Array, " n"], objective: str = "mean", alpha: float = 0.9) -> Float[Array, ""]:
+def risk(values: Float[Array, " n"], objective="mean", alpha=0.9) -> Float[Array, ""]:
     """Aggregate peak stresses over drops: `"mean"`, `"max"` (worst case) or `"cvar"` (mean of the worst
-    1 - alpha fraction, with the boundary drop weighted fractionally; alpha = 0 is the mean)."""
-    if objective == "mean":
-        return jnp.mean(values)
-    if objective == "max":
-        return jnp.max(values)
-    if objective == "cvar":
+    1 - alpha fraction, with the boundary drop weighted fractionally; alpha = 0 is the mean). `objective` may also
+    be its index in `OBJECTIVES` as an integer array: then one compiled program serves every objective."""
+
+    def cvar():
         n = values.shape[0]
         tail = (1.0 - alpha) * n
-        ordered = jnp.sort(values)[::-1]
         weights = jnp.clip(tail - jnp.arange(n), 0.0, 1.0)
-        return jnp.sum(weights * ordered) / tail
-    raise ValueError(f"objective = {objective!r}; valid: {', '.join(OBJECTIVES)}")
+        return jnp.sum(weights * jnp.sort(values)[::-1]) / tail
+
+    aggregates = {"mean": lambda: jnp.mean(values), "max": lambda: jnp.max(values), "cvar": cvar}
+    if not isinstance(objective, str):
+        return jnp.stack([aggregates[name]() for name in OBJECTIVES])[objective]
+    if objective not in aggregates:
+        raise ValueError(f"objective = {objective!r}; valid: {', '.join(OBJECTIVES)}")
+    return aggregates[objective]()
+
+
+def _traced_config(objective: str, alpha, numerics, margin=None) -> tuple:
+    """The optimiser's settings with the objective as an index and alpha, margin as arrays: arguments that
+    `filter_jit` traces, so that every objective, level and clearance shares one compiled program."""
+    dtype = float_dtype()
+    config = (jnp.asarray(OBJECTIVES.index(objective)), jnp.asarray(alpha, dtype), numerics)
+    return config if margin is None else config + (jnp.asarray(margin, dtype),)
 
 
 def drop_set(scene: Scene, orientations, heights=None) -> Scene:
@@ -197,7 +208,7 @@ def optimize_placement(
     others = jax.random.uniform(key, (starts - 1, 3), minval=-1.5, maxval=1.5)
     U = jnp.concatenate([u0[None], others], axis=0)
     state = jax.vmap(optimizer.init)(U)
-    config = (objective, alpha, numerics, float(margin))
+    config = _traced_config(objective, alpha, numerics, margin)
 
     history, path_u = [], [U]
     best_u, best_v = U, jnp.full((starts,), jnp.inf)
@@ -295,7 +306,7 @@ def placement_landscape(scene: Scene, result: PlacementResult, orientations=None
     c2 = np.linspace(-R2, R2, n[1])
     C1, C2 = np.meshgrid(c1, c2, indexing="ij")
     centres = jnp.stack([C1.ravel(), C2.ravel()], axis=-1)
-    values = _landscape(centres, phi, drops, (result.objective, alpha, numerics))
+    values = _landscape(centres, phi, drops, _traced_config(result.objective, alpha, numerics))
     return c1, c2, np.asarray(values).reshape(C1.shape)
 
 

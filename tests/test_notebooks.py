@@ -11,7 +11,7 @@ NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
 SMALL = {
     "01_thesis_chapter4.ipynb": "T_END = 2.0",
     "02_thesis_chapter5.ipynb": "N_ANGLES = 7",
-    "03_board_level_drop.ipynb": "N_MODES_MAX = 8\nN_AMPLIFICATION = 5",
+    "03_board_level_drop.ipynb": "N_MODES_MAX = 4\nN_AMPLIFICATION = 5",
     "04_monte_carlo.ipynb": "N = 4000\nLIMIT = 2500e-6",
     "05_placement.ipynb": "STEPS = 4\nSTARTS = 1",
     "06_speed_vs_accuracy.ipynb": "RERUN = False",
