@@ -2,6 +2,9 @@
 elsewhere)."""
 
 import json
+import os
+import subprocess
+import sys
 
 import pytest
 
@@ -68,3 +71,23 @@ def test_pivot_is_a_clear_cli_error_and_clattering_montecarlo_runs(tmp_path, cap
     assert "pivot phase" in capsys.readouterr().err
     assert main(["montecarlo", "-n", "64", "--max-impacts", "2", "--no-plots"]) == 0
     assert "64 random drops" in capsys.readouterr().out
+
+
+def test_cli_compiles_with_a_flag_jaxlib_knows_and_respects_the_users(monkeypatch):
+    from beamdrop_jax import cli
+
+    env = {}
+    cli._compile_faster(env)
+    assert env == {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=false"}
+    # The flag is real: a JAX process started with it computes (an unknown flag would abort it).
+    done = subprocess.run([sys.executable, "-c", "import jax.numpy as jnp; print(float(jnp.ones(3).sum()))"],
+                          env={**os.environ, **env}, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "3.0", done.stderr[-500:]
+    mine = {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true --xla_dump_to=/tmp/x"}
+    cli._compile_faster(mine)
+    assert mine == {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true --xla_dump_to=/tmp/x"}
+    # A flag the installed jaxlib does not name is never passed.
+    monkeypatch.setattr(cli, "_FAST_COMPILE_FLAG", "--xla_cpu_no_such_flag_for_beamdrop=false")
+    env = {"XLA_FLAGS": "--xla_dump_to=/tmp/x"}
+    cli._compile_faster(env)
+    assert env == {"XLA_FLAGS": "--xla_dump_to=/tmp/x"}
