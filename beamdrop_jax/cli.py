@@ -512,9 +512,12 @@ def _jaxlib_knows(flag: str) -> bool:
     name = flag.lstrip("-").split("=")[0].encode()
     for folder in (spec.submodule_search_locations or []) if spec else []:
         for lib in sorted(Path(folder).glob("*.so"), key=lambda f: -f.stat().st_size):
-            with open(lib, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
-                if data.find(name) >= 0:
-                    return True
+            try:
+                with open(lib, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+                    if data.find(name) >= 0:
+                        return True
+            except (OSError, ValueError):  # unreadable or empty: it names nothing
+                continue
     return False
 
 
