@@ -36,6 +36,7 @@ class Flag(enum.IntFlag):
     NONFINITE_RESULT = 16384
     CONTACT_MATRIX = 32768
     WINDOW_RANGE = 65536  # an explicit `Numerics.window` leaves the top mode < 2 time-grid points per period
+    OUTSIDE_TABLE = 131072  # a drop's contact duration outside the durations its `SuperpositionTable` spans
 
     @classmethod
     def describe(cls, flags) -> list[str]:

@@ -358,21 +358,25 @@ def plot_campaign(result, *, ax=None, limit: float | None = None, scene: str | N
 
 
 def plot_bench(rows, *, ax=None):
-    """Log-log chart of max relative error of the peak stress against seconds per drop, Pareto front marked."""
-    from ._bench import pareto_front
-
+    """Log-log chart of max relative error of the peak stress against seconds per drop, the Pareto front of each
+    workload marked (rows as `run_bench` returns them; open markers: drops whose contact duration varies)."""
     fig, ax = _axes(ax, (8.0, 5.5))
     floor = 1e-16
     groups = {}
     for r in rows:
-        groups.setdefault(r["method"], []).append(r)
-    markers = iter("osD^vP*Xh<>")
-    for method, rs in groups.items():
-        ax.loglog([r["seconds_per_drop"] for r in rs], [max(r["max_error"], floor) for r in rs], next(markers, "o"),
-                  ms=7, alpha=0.8, label=method)
-    front = sorted((rows[i] for i in pareto_front(rows)), key=lambda r: r["seconds_per_drop"])
-    ax.loglog([r["seconds_per_drop"] for r in front], [max(r["max_error"], floor) for r in front], "k-", lw=1,
-              label="Pareto front")
+        groups.setdefault((r["method"], r.get("workload", "fixed duration")), []).append(r)
+    markers = {}
+    for (method, workload), rs in groups.items():
+        marker = markers.setdefault(method, "osD^vP*Xh<>"[len(markers) % 11])
+        varied = workload != "fixed duration"
+        ax.loglog([r["seconds_per_drop"] for r in rs], [max(r["max_error"], floor) for r in rs], marker, ms=7,
+                  alpha=0.8, mfc="none" if varied else None, label=method + (f" ({workload})" if varied else ""))
+    for workload, style in (("fixed duration", "k-"), ("duration U[0.2, 1] ms", "k--")):
+        front = sorted((r for r in rows if r.get("pareto") and r.get("workload", "fixed duration") == workload),
+                       key=lambda r: r["seconds_per_drop"])
+        if front:
+            ax.loglog([r["seconds_per_drop"] for r in front], [max(r["max_error"], floor) for r in front], style,
+                      lw=1, label=f"Pareto front ({workload})")
     ax.axhline(0.01, color="tab:red", ls=":", lw=1, label="1 % error")
     ax.set_xlabel("seconds per drop (median, batched where possible)")
     ax.set_ylabel("max relative error of peak stress vs converged reference")
