@@ -365,16 +365,17 @@ def plot_bench(rows, *, ax=None):
     groups = {}
     for r in rows:
         groups.setdefault((r["method"], r.get("workload", "fixed duration")), []).append(r)
-    markers = {}
+    styles = {}  # one marker and colour per method, filled for the fixed duration, open where it varies
     for (method, workload), rs in groups.items():
-        marker = markers.setdefault(method, "osD^vP*Xh<>"[len(markers) % 11])
+        marker, colour = styles.setdefault(method, ("osD^vP*Xh<>"[len(styles) % 11], f"C{len(styles) % 10}"))
         varied = workload != "fixed duration"
         ax.loglog([r["seconds_per_drop"] for r in rs], [max(r["max_error"], floor) for r in rs], marker, ms=7,
-                  alpha=0.8, mfc="none" if varied else None, label=method + (f" ({workload})" if varied else ""))
+                  color=colour, alpha=0.8, mfc="none" if varied else colour,
+                  label=method + (f" ({workload})" if varied else ""))
     for workload, style in (("fixed duration", "k-"), ("duration U[0.2, 1] ms", "k--")):
         front = sorted((r for r in rows if r.get("pareto") and r.get("workload", "fixed duration") == workload),
                        key=lambda r: r["seconds_per_drop"])
-        if front:
+        if len(front) > 1:
             ax.loglog([r["seconds_per_drop"] for r in front], [max(r["max_error"], floor) for r in front], style,
                       lw=1, label=f"Pareto front ({workload})")
     ax.axhline(0.01, color="tab:red", ls=":", lw=1, label="1 % error")
