@@ -353,6 +353,9 @@ def superposition_table(scene: Scene, numerics: Numerics | None = None, n_angles
     if durations is None:
         nodes = jnp.reshape(jnp.asarray(scene.contact.duration, dtype=float_dtype()), (1,))
     else:
+        if isinstance(durations, str) or np.shape(durations) != (2,):
+            raise ValueError(f"durations = {durations!r}; valid: (shortest, longest) in s, or None for the scene's "
+                             "one Contact.duration")
         lo, hi = (as_real(v, f"durations[{i}]", Range(0.0, 1.0, lo_open=True, unit="s"))
                   for i, v in enumerate(durations))
         if not hi > lo:

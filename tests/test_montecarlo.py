@@ -188,6 +188,9 @@ def test_duration_table_flags_durations_it_does_not_span():
         bd.superposition_table(scene, durations=(0.0, 1e-3))
     with pytest.raises(ValueError, match="shortest < longest"):
         bd.superposition_table(scene, durations=(1e-3, 1e-3))
+    for bad in ((1e-3,), "abc", (1e-4, 2e-4, 3e-4)):
+        with pytest.raises(ValueError, match=r"durations = .*valid: \(shortest, longest\) in s"):
+            bd.superposition_table(scene, durations=bad)
 
 
 def test_superpose_needs_one_pulse_per_drop():
