@@ -223,7 +223,7 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     repeats = repeats or (1 if tiny else 3 if quick else 5)
     key = jax.random.PRNGKey(2026)
     drops = DropDistribution().sample(scene, n, key)
-    axes = sample_axes(drops, n)
+    axes = sample_axes(drops, scene)
     samples = drops.drop.orientation
     # The NumPy peer on 4096 drops (the bench's own, repeated), where its per-call overhead is small; timed here,
     # before any JAX work, and again at the end, keeping its faster time (it ran 2x slower after the diffrax rows

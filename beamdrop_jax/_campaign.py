@@ -28,7 +28,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._scene import require_beam
 from ._checks import Flag
 from ._motion import JESD22_B111_CONDITION_B, HalfSine
 
@@ -235,7 +234,6 @@ def campaign(scene, standard: str, numerics=None, *, mass: float | None = None, 
     each drop of the standard): a `CampaignResult`. Standards: `STANDARDS` (ista-1a, ista-2a, mil-std-810h-516-iv,
     iec-60068-2-31, jesd22-b111); `mass`, `height` as in `campaign_drops`. How each 3-D drop maps onto the plane
     is in this module's notes."""
-    require_beam(scene, "bd.campaign")
     from ._montecarlo import sample_axes
     from ._simulate import Numerics, _scene_peaks, board_response
 
@@ -258,7 +256,7 @@ def campaign(scene, standard: str, numerics=None, *, mass: float | None = None, 
             "drop.horizontal_speed": jnp.zeros(len(planar), dtype),
         }
     )
-    axes = sample_axes(batch, len(planar))
+    axes = sample_axes(batch, scene)
     values, flags = jax.vmap(lambda s: _scene_peaks(s, numerics, ("stress", "strain", "deflection")), (axes,))(batch)
     values, flags = np.asarray(values), np.asarray(flags)
     if np.any(flags):

@@ -37,6 +37,7 @@ class Flag(enum.IntFlag):
     CONTACT_MATRIX = 32768
     WINDOW_RANGE = 65536  # an explicit `Numerics.window` leaves the top mode < 2 time-grid points per period
     OUTSIDE_TABLE = 131072  # a drop's contact duration outside the durations its `SuperpositionTable` spans
+    PRECISION = 262144  # a plate in float32: its Ritz eigenproblem needs float64
 
     @classmethod
     def describe(cls, flags) -> list[str]:

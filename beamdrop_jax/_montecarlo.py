@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from ._checks import float_dtype
 from ._checks import Flag
-from ._scene import Scene, check_scene, require_beam
+from ._scene import Scene, check_scene
 from ._simulate import Numerics, _scene_peaks
 from ._superposition import superposes, superposition_table, table_numerics, table_peaks
 
@@ -91,19 +91,10 @@ class DropDistribution(eqx.Module):
         return out
 
 
-def sample_axes(samples: Scene, n: int) -> Scene:
-    """vmap `in_axes` for a sampled scene: 0 where a field carries the sample axis, None where it is fixed."""
-    # Each field's own rank, in the samples' tree structure (its static fields, e.g. the board's ends, may differ
-    # from the default scene's).
-    ndims = jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(samples), _field_ndims())
-    return jax.tree_util.tree_map(
-        lambda s, f: 0 if (jnp.ndim(s) == f + 1 and jnp.shape(s)[0] == n) else None, samples, ndims
-    )
-
-
-@functools.cache
-def _field_ndims() -> list[int]:
-    return [jnp.ndim(v) for v in jax.tree_util.tree_leaves(Scene.default())]
+def sample_axes(samples: Scene, scene: Scene) -> Scene:
+    """vmap `in_axes` for scenes sampled from `scene`: 0 where a field of `samples` carries a leading sample axis
+    (one more axis than in `scene`), None where it is as in `scene`."""
+    return jax.tree_util.tree_map(lambda s, f: 0 if jnp.ndim(s) == jnp.ndim(f) + 1 else None, samples, scene)
 
 
 def wilson_interval(k, n, confidence=0.95) -> tuple[float, float]:
@@ -223,7 +214,7 @@ def montecarlo_numerics(scene: Scene, distribution: "DropDistribution | None" = 
     from ._beam import natural_frequencies
 
     tau = float(scene.contact.duration)
-    pinned = scene.board.ends == "pinned"
+    pinned = getattr(scene.board, "ends", None) == "pinned"  # plates converge as slowly as clamped beams
     spec = None if distribution is None else distribution.duration
     if spec is not None:
         tau = spec[1] if spec[0] == "uniform" else spec[1] * math.exp(-3 * spec[2])
@@ -300,8 +291,8 @@ def montecarlo(
       random drops with durations uniform on [0.2, 1] ms; up to 3.4e-3 on a clamped board, whose peak can move
       to another clamp or time between two table durations (tests/test_montecarlo.py). Default numerics:
       `table_numerics(scene, durations)`.
-    - **direct** (`superpose=False`; the only way when `Numerics.max_impacts` > 1, for the diffrax method, or
-      when sampled durations reach 0): each drop runs its own peak search, exactly as `simulate(drop, numerics)`
+    - **direct** (`superpose=False`; the only way for plates, when `Numerics.max_impacts` > 1, for the diffrax
+      method, or when sampled durations reach 0): each drop runs its own peak search, exactly as `simulate(drop, numerics)`
       does. Default numerics: `montecarlo_numerics(scene, distribution)`.
 
     **Arguments:**
@@ -315,7 +306,6 @@ def montecarlo(
       10,000 drops of five scenes, default numerics; stress and strain are always refined).
       Superposed deflections are always refined.
     """
-    require_beam(scene, "bd.montecarlo")
     if not (isinstance(n, (int, np.integer)) and n >= 1):
         raise ValueError(f"n = {n!r}; valid: an int >= 1")
     n = int(n)
@@ -327,7 +317,7 @@ def montecarlo(
     check_scene(scene)
     samples = distribution.sample(scene, n, key)
     durations = None  # the table's span of contact durations, when they vary
-    cannot = superposes(Numerics() if numerics is None else numerics)
+    cannot = superposes(Numerics() if numerics is None else numerics, scene.board)
     if distribution.duration is not None and cannot is None:
         tau = np.asarray(samples.contact.duration)
         durations = (float(tau.min()), float(tau.max()))
@@ -337,7 +327,7 @@ def montecarlo(
         elif not durations[1] > durations[0]:
             scene, durations = scene.replace(**{"contact.duration": durations[0]}), None
     if superpose and cannot:
-        raise ValueError(f"montecarlo(superpose=True) needs one pulse for every drop, but {cannot}")
+        raise ValueError(f"montecarlo(superpose=True) needs a beam and one pulse for every drop, but {cannot}")
     superpose = cannot is None if superpose is None else bool(superpose)
     devices = jax.local_devices() if devices is None else list(devices)
     n_dev = len(devices)
@@ -357,7 +347,7 @@ def montecarlo(
         inner = inner_batch(numerics, batch, n_dev)
         evaluate = lambda chunk, axes: _evaluate(chunk, axes, numerics, not refine_deflection, inner)  # noqa: E731
     batch = -(-batch // inner) * inner
-    axes = sample_axes(samples, n)
+    axes = sample_axes(samples, scene)
     mesh = Mesh(np.asarray(devices), ("drops",))
     sharded = NamedSharding(mesh, PartitionSpec("drops"))
     replicated = NamedSharding(mesh, PartitionSpec())

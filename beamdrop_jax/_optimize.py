@@ -18,7 +18,7 @@ from tqdm import tqdm
 
 from ._checks import float_dtype
 from ._checks import Flag, combine
-from ._scene import Placement, Scene, check_scene, scene_flags, require_beam
+from ._scene import Placement, Scene, check_scene, scene_flags
 from ._simulate import Numerics, peak_stress
 
 OBJECTIVES = ("mean", "max", "cvar")
@@ -186,7 +186,6 @@ def optimize_placement(
       placement plus `starts - 1` random ones (`key`), optimised together.
     - `margin`: clearance (m) between the board's ends and the housing's edges.
     """
-    require_beam(scene, "bd.optimize_placement")
     if objective not in OBJECTIVES:
         raise ValueError(f"objective = {objective!r}; valid: {', '.join(OBJECTIVES)}")
     if not 0.0 <= alpha < 1.0:

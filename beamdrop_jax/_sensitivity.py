@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._scene import SECTIONS, Scene, require_beam
+from ._scene import Scene, _section_classes, require_beam
 from ._simulate import Numerics, _setup, drop_motion, peak_deflection, peak_strain, peak_stress
 from ._beam import mode_shapes
 from ._peaks import field_on_grid
@@ -14,18 +14,25 @@ from ._peaks import field_on_grid
 _PEAKS = {"stress": peak_stress, "strain": peak_strain, "deflection": peak_deflection}
 
 
-def scalar_fields(scene: Scene) -> list[tuple[str, float]]:
-    """Dotted names and values of every scalar float in a scene (vectors expand to `name[i]`)."""
+def _scalar_fields(scene: Scene) -> list[tuple[str, float, str]]:
+    """(dotted name, value, SI unit) of every scalar float in a scene; arrays expand to `name[i]`, `name[i, j]`
+    (a plate's mount positions among them)."""
     rows = []
-    for section, cls in SECTIONS.items():
+    for section, cls in _section_classes(scene).items():
         module = getattr(scene, section)
-        for name in cls.RANGES:
+        units = {name: spec[0].unit for name, spec in cls.RANGES.items()}
+        if getattr(module, "mounts", None) is not None:
+            units["mounts"] = "m"
+        for name, unit in units.items():
             value = np.asarray(getattr(module, name))
-            if value.ndim == 0:
-                rows.append((f"{section}.{name}", float(value)))
-            else:
-                rows += [(f"{section}.{name}[{i}]", float(v)) for i, v in enumerate(value.ravel())]
+            rows += [(f"{section}.{name}" + (f"[{', '.join(map(str, i))}]" if i else ""), float(value[i]), unit)
+                     for i in np.ndindex(value.shape)]
     return rows
+
+
+def scalar_fields(scene: Scene) -> list[tuple[str, float]]:
+    """Dotted names and values of every scalar float in a scene (arrays expand to `name[i]`, `name[i, j]`)."""
+    return [(name, value) for name, value, _ in _scalar_fields(scene)]
 
 
 class Sensitivity(eqx.Module):
@@ -37,12 +44,8 @@ class Sensitivity(eqx.Module):
     value: float = eqx.field(static=True)
     derivative: float = eqx.field(static=True)
     elasticity: float | None = eqx.field(static=True)
-
-    @property
-    def unit(self) -> str:
-        """The field's SI unit ("" for dimensionless fields)."""
-        section, name = self.field.split("[")[0].split(".")
-        return SECTIONS[section].RANGES[name][0].unit
+    unit: str = eqx.field(static=True, default="")
+    """The field's SI unit ("" for dimensionless fields)."""
 
     def row(self, peak_unit: str = "Pa", scale: float = 1.0) -> dict:
         """The row with the derivative in `peak_unit` (the peak's SI value times `scale`) per field unit."""
@@ -55,20 +58,16 @@ class Sensitivity(eqx.Module):
 def sensitivities(scene: Scene, numerics: Numerics | None = None, quantity: str = "stress") -> list[Sensitivity]:
     """d(peak)/d(field) and elasticities for every scalar field of a scene, largest |elasticity| first (fields at
     zero, whose elasticity is undefined (None), follow, largest |derivative| first). `quantity`: stress, strain or deflection."""
-    require_beam(scene, "bd.sensitivities")
     if quantity not in _PEAKS:
         raise ValueError(f"quantity = {quantity!r}; valid: {', '.join(_PEAKS)}")
     peak_fn = _PEAKS[quantity]
     numerics = Numerics() if numerics is None else numerics
     peak, grad = eqx.filter_jit(jax.value_and_grad(lambda s: peak_fn(s, numerics)))(scene)
-    values = dict(scalar_fields(scene))
     grads = dict(scalar_fields(grad))
     peak = float(peak)
-    rows = [
-        Sensitivity(name, values[name], grads[name],
-                    values[name] * grads[name] / peak if (peak and values[name] != 0.0) else None)
-        for name in values
-    ]
+    rows = [Sensitivity(name, value, grads[name], value * grads[name] / peak if (peak and value != 0.0) else None,
+                        unit)
+            for name, value, unit in _scalar_fields(scene)]
     return sorted(rows, key=lambda r: (r.elasticity is None, -abs(r.elasticity or 0.0), -abs(r.derivative)))
 
 

@@ -184,8 +184,10 @@ def table_peaks(table: SuperpositionTable, samples: Scene, axes):
     return _batch_response(table, samples.board, samples.contact.duration, batched, jumps, flags)
 
 
-def superposes(numerics: Numerics) -> str | None:
-    """Why drops with `numerics` cannot share a table (None when they can)."""
+def superposes(numerics: Numerics, board) -> str | None:
+    """Why drops of `board` with `numerics` cannot share a table (None when they can)."""
+    if not isinstance(board, Board):
+        return f"the board is a {type(board).__name__} (tables are built for beams, bd.Board)"
     if numerics.method != "closed_form":
         return f'Numerics.method = "{numerics.method}" (the table is built from the closed form)'
     if numerics.max_impacts != 1:
@@ -364,9 +366,9 @@ def superposition_table(scene: Scene, numerics: Numerics | None = None, n_angles
         as_int(n_durations, "n_durations", 2, 1024)
         nodes = jnp.linspace(lo, hi, n_durations, dtype=float_dtype())
     numerics = table_numerics(scene, None if durations is None else durations) if numerics is None else numerics
-    why = superposes(numerics)
+    why = superposes(numerics, scene.board)
     if why is not None:
-        raise ValueError(f"a superposition table needs one pulse of the closed form, not {why}")
+        raise ValueError(f"a superposition table needs a beam and one pulse of the closed form, not {why}")
     if not (isinstance(n_angles, int) and n_angles >= 8 and n_angles % 4 == 0):
         raise ValueError(f"n_angles = {n_angles!r}; valid: a multiple of 4, >= 8 (the build uses the board's mirror "
                          "symmetry over quarters of the pseudo-angle)")
