@@ -66,6 +66,7 @@ from ._optimize import (
     risk as risk,
 )
 from ._superposition import (
+    PlateTable as PlateTable,
     SuperpositionTable as SuperpositionTable,
     superposition_table as superposition_table,
     table_numerics as table_numerics,

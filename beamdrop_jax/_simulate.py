@@ -528,17 +528,28 @@ def _plate_grid(plate: Plate):
     return jnp.linspace(0.0, 1.0, 2 * plate.basis[0] + 1), jnp.linspace(-0.5, 0.5, 2 * plate.basis[1] + 1)
 
 
+def _plate_points(plate: Plate, modes):
+    """The search grid (xi, eta) and the mode shapes (phi, phi_xx, phi_yy, phi_xy) at its points (xi-major)."""
+    xi, eta = _plate_grid(plate)
+    XI, ETA = (v.ravel() for v in jnp.meshgrid(xi, eta, indexing="ij"))
+    return xi, eta, modes.shapes(XI * plate.length, ETA * plate.width)
+
+
 def _plate_searches(S: _Setup, plate: Plate, numerics: Numerics, modes, kinds: tuple[str, ...], masks,
                     shared: tuple[int, ...] | None = None):
     """Peaks of the measures `kinds` (of `PLATE_MEASURES`) of the fields with modal masks `masks` (rows): the
     fields on the grid once per distinct mask (`shared[i]`: the row whose mask row i uses; default each its own),
     each row's own measure on them, then one batched refinement (one compiled copy)."""
     shared = tuple(range(len(kinds))) if shared is None else shared
-    xi, eta = _plate_grid(plate)
-    XI, ETA = (v.ravel() for v in jnp.meshgrid(xi, eta, indexing="ij"))
-    shapes = modes.shapes(XI * plate.length, ETA * plate.width)
+    _, _, shapes = _plate_points(plate, modes)
     fields = {j: [field_on_grid(masks[j], S.Q, v) for v in shapes] for j in sorted(set(shared))}
     grids = jnp.stack([PLATE_MEASURES[k](plate, *fields[j]) for k, j in zip(kinds, shared)])
+    return _plate_refine(S, plate, numerics, modes, kinds, masks, grids)
+
+
+def _plate_refine(S: _Setup, plate: Plate, numerics: Numerics, modes, kinds: tuple[str, ...], masks, grids):
+    """`_plate_searches` from the measures already on the grid (`grids`, one (points, nt) row per kind)."""
+    xi, eta = _plate_grid(plate)
     measures = tuple(PLATE_MEASURES[k] for k in kinds)
 
     def search(mask, which, grid):
