@@ -19,7 +19,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 from ._beam import mode_shapes
 
 
@@ -249,46 +249,58 @@ def _outside_mounts(plate, x, y):
     return x, y
 
 
+def plate_starts(plate, measure: Callable, fields, points, candidates: int, times=None, at_times=None):
+    """Where a plate search starts: the `candidates` largest local maxima in time of the measure's largest value
+    over the grid's points (mount discs left out), and the point that has it at each of those times.
+
+    `fields`: (u, k_xx, k_yy, k_xy) on the grid, each (points, nt); `points`: their (x, y) (m). Returns the time
+    indices, point indices and values, each (candidates,). Over the whole grid the measure is only max-reduced,
+    which XLA fuses with the expression that makes it (the grid is never stored); the argmax, several times the
+    cost of a max on CPU, runs at the candidate times alone. With `times` (indices) and `at_times` (the fields at
+    those times, each (points, len(times))) instead of `fields`, the search starts at those times."""
+    x, y = points
+    if plate.mounts is None:
+        outside = lambda A: A  # noqa: E731
+    else:
+        near = jnp.any(jnp.hypot(x[:, None] - plate.mounts[:, 0], y[:, None] - plate.mounts[:, 1])
+                       < plate.mount_radius * (1 - 1e-9), axis=1)
+        outside = lambda A: jnp.where(near[:, None], -jnp.inf, A)  # noqa: E731
+    if times is None:
+        envelope = outside(measure(plate, *fields)).max(axis=0)
+        left = jnp.concatenate([jnp.full((1,), -jnp.inf, envelope.dtype), envelope[:-1]])
+        right = jnp.concatenate([envelope[1:], jnp.full((1,), -jnp.inf, envelope.dtype)])
+        times = _largest(jnp.where((envelope >= left) & (envelope >= right), envelope, -jnp.inf),
+                         min(candidates, envelope.shape[0]))
+        at_times = [f[:, times] for f in fields]
+    A = outside(measure(plate, *at_times))
+    return times, A.argmax(axis=0), A.max(axis=0)
+
+
 def find_plate_peak(
     measure: Callable,
     coeffs: Float[Array, " n"],
     modal: Callable,
-    Q: tuple,
     modes,
     xi: Float[Array, " nx"],
     eta: Float[Array, " ny"],
     t: Float[Array, " nt"],
     window,
+    starts: tuple,
     *,
-    candidates: int = 4,
     newton_steps: int = 6,
     refine: bool = True,
-    grid: Float[Array, "p nt"] | None = None,
 ) -> PlatePeak:
     """Peak over a plate and the window of `measure(plate, u, k_xx, k_yy, k_xy)` (e.g. the largest principal
-    surface strain) of the field with modal coefficients `coeffs` (the modes' `PlateModes`), from the evenly spaced
-    grid `xi` x `eta` (x / L, y / W) and times `t` (`Q = modal.grid_factors(t)`), points inside mount discs left
-    out.
-    The grid's best `candidates` (largest local maxima in time) are refined by Newton's method in (x, y, t) in a
-    trust region of one grid cell (derivatives by automatic differentiation), steps that enter a mount disc
-    projected onto its circle. The value's gradient is taken at the maximiser (envelope theorem); on a mount's
-    circle the point moves with the mount. `grid`: the measure on the grid points (xi-major) and times, when the
-    caller has it (searches that share fields)."""
+    surface strain) of the field with modal coefficients `coeffs` (the modes' `PlateModes`; `modal(t)` the modal
+    coordinates), from the evenly spaced grid `xi` x `eta` (x / L, y / W) and times `t`, starting from `starts`
+    (`plate_starts`: grid time and point indices and values).
+    Each start is refined by Newton's method in (x, y, t) in a trust region of one grid cell (derivatives by
+    central differences), steps that enter a mount disc projected onto its circle. The value's gradient is taken
+    at the maximiser (envelope theorem); on a mount's circle the point moves with the mount."""
     plate = modes.plate
     cell = jnp.stack([xi[1] - xi[0], eta[1] - eta[0], t[1] - t[0]])
     xi, eta = (v.ravel() for v in jnp.meshgrid(xi, eta, indexing="ij"))
-    x, y = xi * plate.length, eta * plate.width
-    A = measure(plate, *(field_on_grid(coeffs, Q, s) for s in modes.shapes(x, y))) if grid is None else grid
-    if plate.mounts is not None:
-        near = jnp.any(jnp.hypot(x[:, None] - plate.mounts[:, 0], y[:, None] - plate.mounts[:, 1])
-                       < plate.mount_radius * (1 - 1e-9), axis=1)
-        A = jnp.where(near[:, None], -jnp.inf, A)
-    envelope = A.max(axis=0)
-    left = jnp.concatenate([jnp.full((1,), -jnp.inf, A.dtype), envelope[:-1]])
-    right = jnp.concatenate([envelope[1:], jnp.full((1,), -jnp.inf, A.dtype)])
-    k_cand = min(candidates if refine else 1, envelope.shape[0])
-    idx = _largest(jnp.where((envelope >= left) & (envelope >= right), envelope, -jnp.inf), k_cand)
-    where_p = A[:, idx].argmax(axis=0)
+    idx, where_p, f_start = starts
 
     coeffs_c, modes_c, modal_c, window_c = stop_gradient((coeffs, modes, modal, window))
     plate_c = modes_c.plate
@@ -359,7 +371,7 @@ def find_plate_peak(
         return jnp.where(grid_wins, z0, z), jnp.maximum(f, f_grid), gain
 
     z0 = jnp.stack([xi[where_p], eta[where_p], t[idx]], axis=-1) / cell
-    z_all, f_all, gain_all = jax.vmap(refine_one)(jax.lax.stop_gradient(z0), jax.lax.stop_gradient(A[where_p, idx]))
+    z_all, f_all, gain_all = jax.vmap(refine_one)(jax.lax.stop_gradient(z0), jax.lax.stop_gradient(f_start))
     tied = f_all >= jnp.max(f_all) * (1.0 - 1e-9)
     best = jnp.argmin(jnp.where(tied, z_all[:, 2], jnp.inf))
     p_best = jax.lax.stop_gradient(z_all[best] * cell)
@@ -376,5 +388,5 @@ def find_plate_peak(
     t_star = jnp.where(p_best[2] >= window * (1.0 - 1e-9), window, p_best[2])
     q = modal(t_star)
     f = measure(plate, *(jnp.sum(coeffs * q * s) for s in modes.shapes(px, py)))
-    err = jax.lax.stop_gradient(gain_all[best] / jnp.maximum(f_all[best], jnp.finfo(A.dtype).tiny))
+    err = jax.lax.stop_gradient(gain_all[best] / jnp.maximum(f_all[best], jnp.finfo(f_all.dtype).tiny))
     return PlatePeak(f, px, py, t_star, err)

@@ -23,7 +23,7 @@ from ._integrate import SOLVERS, solve_modes
 from ._clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
 from ._kinematics import HousingImpact, housing_impact
 from ._motion import HalfSine, Impulse, PulseTrain, Record
-from ._peaks import FieldPeak, field_on_grid, find_peak, find_plate_peak, stop_gradient
+from ._peaks import FieldPeak, field_on_grid, find_peak, find_plate_peak, plate_starts, stop_gradient
 from ._plate import Plate, PlateModes, plate_modes, surface_strain, surface_stress
 from ._scene import Board, Scene, check_scene, require_single, scene_flags
 
@@ -529,38 +529,44 @@ def _plate_grid(plate: Plate):
 
 
 def _plate_points(plate: Plate, modes):
-    """The search grid (xi, eta) and the mode shapes (phi, phi_xx, phi_yy, phi_xy) at its points (xi-major)."""
+    """The search grid (xi, eta), its points (x, y) (m, xi-major) and the mode shapes (phi, phi_xx, phi_yy, phi_xy)
+    there."""
     xi, eta = _plate_grid(plate)
     XI, ETA = (v.ravel() for v in jnp.meshgrid(xi, eta, indexing="ij"))
-    return xi, eta, modes.shapes(XI * plate.length, ETA * plate.width)
+    x, y = XI * plate.length, ETA * plate.width
+    return xi, eta, (x, y), modes.shapes(x, y)
 
 
-def _plate_searches(S: _Setup, plate: Plate, numerics: Numerics, modes, kinds: tuple[str, ...], masks,
-                    shared: tuple[int, ...] | None = None):
-    """Peaks of the measures `kinds` (of `PLATE_MEASURES`) of the fields with modal masks `masks` (rows): the
-    fields on the grid once per distinct mask (`shared[i]`: the row whose mask row i uses; default each its own),
-    each row's own measure on them, then one batched refinement (one compiled copy)."""
-    shared = tuple(range(len(kinds))) if shared is None else shared
-    _, _, shapes = _plate_points(plate, modes)
-    fields = {j: [field_on_grid(masks[j], S.Q, v) for v in shapes] for j in sorted(set(shared))}
-    grids = jnp.stack([PLATE_MEASURES[k](plate, *fields[j]) for k, j in zip(kinds, shared)])
-    return _plate_refine(S, plate, numerics, modes, kinds, masks, grids)
-
-
-def _plate_refine(S: _Setup, plate: Plate, numerics: Numerics, modes, kinds: tuple[str, ...], masks, grids):
-    """`_plate_searches` from the measures already on the grid (`grids`, one (points, nt) row per kind)."""
+def _plate_searches(S: _Setup, plate: Plate, numerics: Numerics, modes, kinds: tuple[str, ...], mask, check=None,
+                    fields=None):
+    """Peaks of the measures `kinds` (of `PLATE_MEASURES`) of the field with modal mask `mask`: the fields on the
+    grid once (or `fields`, (u, k_xx, k_yy, k_xy) on the grid, when the caller has them), each kind's own
+    candidates, then one batched refinement (one compiled copy). With a second mask `check`, one more row: the
+    first kind's peak with that mask, started at the first kind's candidate times (its fields are evaluated at
+    those times alone: it measures the same peak with more modes)."""
+    _, _, points, shapes = _plate_points(plate, modes)
+    fields = [field_on_grid(mask, S.Q, v) for v in shapes] if fields is None else fields
+    measures = [PLATE_MEASURES[k] for k in kinds]
+    candidates = numerics.candidates if numerics.refine else 1
+    starts = [plate_starts(plate, m, fields, points, candidates) for m in measures]
+    masks = [mask] * len(kinds)
+    if check is not None:
+        scale, R = S.Q
+        times = starts[0][0]
+        at_times = [field_on_grid(check, (scale, R[times]), v) for v in shapes]
+        starts.append(plate_starts(plate, measures[0], None, points, candidates, times, at_times))
+        masks.append(check)
+        measures.append(measures[0])
     xi, eta = _plate_grid(plate)
-    measures = tuple(PLATE_MEASURES[k] for k in kinds)
 
-    def search(mask, which, grid):
+    def search(mask, which, *start):
         def measure(*args):
             return jnp.select([which == i for i in range(len(measures))], [m(*args) for m in measures])
 
-        return find_plate_peak(measure, mask, S.modal, S.Q, modes, xi, eta, S.t, S.window,
-                               candidates=numerics.candidates, newton_steps=numerics.newton_steps,
-                               refine=numerics.refine, grid=grid)
+        return find_plate_peak(measure, mask, S.modal, modes, xi, eta, S.t, S.window, start,
+                               newton_steps=numerics.newton_steps, refine=numerics.refine)
 
-    return jax.vmap(search)(masks, jnp.arange(len(kinds)), grids)
+    return jax.vmap(search)(jnp.stack(masks), jnp.arange(len(masks)), *(jnp.stack(v) for v in zip(*starts)))
 
 
 def _gauges(plate: Plate, S: _Setup, modes, mask, points) -> Gauges:
@@ -606,10 +612,9 @@ def _respond_plate(plate: Plate, motion, numerics: Numerics, flags, gauges=None)
     S = _setup(plate, motion, numerics, with_check=True)
     modes = S.modes
     used_mask = (S.k <= S.used).astype(float_dtype())
-    masks = jnp.stack([used_mask, (S.k <= S.check).astype(float_dtype()), used_mask, used_mask])
-    found = _plate_searches(S, plate, numerics, modes, ("stress", "stress", "strain", "deflection"), masks,
-                            shared=(0, 1, 0, 0))
-    stress, check, strain, deflection = (jax.tree_util.tree_map(lambda v: v[i], found) for i in range(4))
+    found = _plate_searches(S, plate, numerics, modes, ("stress", "strain", "deflection"), used_mask,
+                            check=(S.k <= S.check).astype(float_dtype()))
+    stress, strain, deflection, check = (jax.tree_util.tree_map(lambda v: v[i], found) for i in range(4))
     error = jnp.abs(stress.value - check.value) / jnp.maximum(stress.value, jnp.finfo(S.window.dtype).tiny)
     nonfinite = ~jnp.isfinite(stress.value) | ~jnp.isfinite(deflection.value)
     flags = combine(flags, plate.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
@@ -736,8 +741,7 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     S = _setup(board, motion, numerics, with_check=False)
     mask = (S.k <= S.used).astype(float_dtype())
     if isinstance(board, Plate):
-        values = _plate_searches(S, board, numerics, S.modes, quantities, jnp.stack([mask] * len(quantities)),
-                                 shared=(0,) * len(quantities)).value
+        values = _plate_searches(S, board, numerics, S.modes, quantities, mask).value
         flags = combine(scene_flags(scene), impact_flags, board.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
                         flag_if(~jnp.all(jnp.isfinite(values)), Flag.NONFINITE_RESULT))
         return jnp.where(flags != 0, jnp.nan, values), flags

@@ -40,7 +40,7 @@ from ._checks import Flag, Range, as_int, as_real, combine, flag_if, float_dtype
 from ._motion import HalfSine
 from ._plate import Plate
 from ._scene import Board, Scene, scene_flags
-from ._simulate import PLATE_MEASURES, Numerics, _plate_points, _plate_refine, _search, _setup, drop_motion
+from ._simulate import PLATE_MEASURES, Numerics, _plate_points, _plate_searches, _search, _setup, drop_motion
 
 _BUILD_BATCH = 16
 DURATION_NODES = 17
@@ -244,9 +244,8 @@ def _build_plate(plate: Plate, duration, numerics: Numerics, n_angles: int, symm
     mask = (S.k <= S.used).astype(float_dtype())
     unit = support_participation(modes, mask.shape[0]) * mask[:, None]
     _, R = S.Q
-    _, _, shapes = _plate_points(plate, modes)
+    _, _, _, shapes = _plate_points(plate, modes)
     G = jnp.stack([jnp.stack([(v * unit[:, c]) @ R.T for v in shapes]) for c in range(2)])  # (2, 4, points, nt)
-    masks = jnp.stack([mask] * len(PLATE_QUANTITIES))
     omega, zeta = S.modal.omega, S.modal.zeta
 
     def direction(p):
@@ -254,8 +253,7 @@ def _build_plate(plate: Plate, duration, numerics: Numerics, n_angles: int, symm
         beta = unit @ d
         D = S._replace(modal=eqx.tree_at(lambda modal: modal.beta, S.modal, beta[None]), Q=(beta, R))
         components = d[0] * G[0] + d[1] * G[1]
-        grids = jnp.stack([PLATE_MEASURES[q](plate, *components) for q in PLATE_QUANTITIES])
-        found = _plate_refine(D, plate, numerics, modes, PLATE_QUANTITIES, masks, grids)
+        found = _plate_searches(D, plate, numerics, modes, PLATE_QUANTITIES, mask, fields=components)
         response = unit_response(found.t[:, None], omega, zeta, duration)  # (3, M)
         at = modes.shapes(found.x, found.y)  # 4 x (3, M)
         fields = jnp.stack([(v * response) @ unit for v in at], axis=1)  # (3, 4, 2)
