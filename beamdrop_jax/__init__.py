@@ -92,7 +92,12 @@ from ._campaign import (
     campaign as campaign,
     campaign_drops as campaign_drops,
 )
-from ._opensees import FEResponse as FEResponse, opensees_board_response as opensees_board_response
+from ._opensees import (
+    FEResponse as FEResponse,
+    PlateFEResponse as PlateFEResponse,
+    opensees_board_response as opensees_board_response,
+    opensees_plate_response as opensees_plate_response,
+)
 from ._bench import numpy_peak_stress as numpy_peak_stress, run_bench as run_bench, stability_study as stability_study
 from ._plots import (
     plot_deflected_board as plot_deflected_board,
