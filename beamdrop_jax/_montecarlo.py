@@ -291,7 +291,7 @@ def montecarlo(
       most 4.6e-4 (stress) and 1.7e-3 (deflection) below a dense per-drop search, and 1.4e-5 above it, on
       random drops with durations uniform on [0.2, 1] ms; up to 3.4e-3 on a clamped board, whose peak can move
       to another clamp or time between two table durations (tests/test_montecarlo.py). A plate's table
-      (`PlateTable`) holds one contact duration: the JESD22 board's peaks within 1.7e-4 of a dense per-drop
+      (`PlateTable`) holds one contact duration: the JESD22 board's peaks within 4.9e-4 of a dense per-drop
       search, about 1.2 million drops/s on 2 cores (`beamdrop bench`). Default numerics:
       `table_numerics(scene, durations)`.
     - **direct** (`superpose=False`; the only way when `Numerics.max_impacts` > 1, for the diffrax method, when
