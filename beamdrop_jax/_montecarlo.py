@@ -288,7 +288,7 @@ def montecarlo(
       drops/s on 2 cores, table build included). Peaks are at most 6.4e-5 (stress) and 2.4e-4 (deflection) below
       the peak of the modal series, never above it. When `distribution.duration` varies, the table spans the
       sampled durations (17 nodes, 128 directions; 0.1-0.25 s to build) and a drop interpolates between them: at
-      most 4.6e-4 (stress) and 1.7e-3 (deflection) below a dense per-drop search, and 1.4e-5 above it, on
+      most 4.6e-4 (stress) and 1.7e-3 (deflection) below a dense per-drop search, and 3.5e-5 above it, on
       random drops with durations uniform on [0.2, 1] ms; up to 3.4e-3 on a clamped board, whose peak can move
       to another clamp or time between two table durations (tests/test_montecarlo.py). A plate's table
       (`PlateTable`) holds one contact duration: the JESD22 board's peaks within 4.9e-4 of a dense per-drop
