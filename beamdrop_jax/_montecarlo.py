@@ -8,7 +8,6 @@ of them.
 """
 
 import collections
-import functools
 import math
 
 import equinox as eqx

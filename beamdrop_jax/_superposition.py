@@ -26,7 +26,6 @@ two times) trade places and one can win between two table durations without bein
 """
 
 import functools
-import math
 
 import equinox as eqx
 import jax
