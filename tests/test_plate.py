@@ -262,6 +262,30 @@ def test_mount_optimiser_finds_what_a_grid_search_finds():
     assert float(res.initial_value) == pytest.approx(float(reading(scene)), rel=1e-9)
 
 
+def test_placement_optimiser_on_a_plate_finds_what_a_grid_search_finds():
+    from scipy.optimize import minimize
+
+    plate = bd.Plate(length=0.1, width=0.05, thickness=1e-3, youngs_modulus=22e9, density=1900.0, poisson_ratio=0.3,
+                     edges="SFSF")
+    scene = eqx.tree_at(lambda s: s.board, bd.Scene.default(), plate)
+    orientations, numerics = np.radians([20.0, 45.0, 70.0]), bd.Numerics(n_modes=4)
+    f = bd.placement_objective(scene, bd.drop_set(scene, orientations), "mean", numerics=numerics)
+    # Grid over the whole feasible set in the optimiser's own parametrisation, then Nelder-Mead from the best point.
+    axes = [np.arctanh(np.linspace(-c, c, n)) for c, n in ((0.97, 11), (0.95, 5), (0.97, 9))]
+    U = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    values = np.asarray(jax.jit(jax.vmap(f))(jnp.asarray(U)))
+    f = jax.jit(f)
+    polish = minimize(lambda u: float(f(jnp.asarray(u))), U[values.argmin()], method="Nelder-Mead",
+                      options=dict(xatol=1e-4, fatol=1e-3 * values.min(), maxiter=200))
+    reference = min(values.min(), polish.fun)
+    res = bd.optimize_placement(scene, orientations, numerics=numerics, steps=60, starts=4, progress=False)
+    assert float(res.value) <= reference * 1.01, (float(res.value), reference)
+    assert res.n_evaluations < len(U) + polish.nfev
+    # The plate's supported ends stay inside the housing.
+    ends = np.asarray(bd.board_ends(res.placement, plate.length))
+    assert np.all(np.abs(ends[:, 0]) <= 0.075 + 1e-12) and np.all(np.abs(ends[:, 1]) <= 0.0375 + 1e-12)
+
+
 def _screwed_scene():
     """A small screwed plate in the default housing (4 corner screws, not quite symmetric, so mirror-image peaks
     do not tie), cheap to compile: 6 x 6 basis functions, 6 modes."""
