@@ -339,3 +339,16 @@ def test_window_too_long_for_its_grid_is_flagged_and_its_bound_is_right():
     found = bd.simulate(scene, bd.Numerics(window=bound)).peak.stress
     fine = bd.simulate(scene, bd.Numerics(window=bound, points_per_period=needed)).peak.stress
     np.testing.assert_allclose(float(found), float(fine), rtol=1e-9)
+
+
+def test_import_loads_modules_on_first_use_and_every_public_name_resolves():
+    import subprocess
+    import sys
+
+    probe = ("import sys, beamdrop_jax as bd; print(sorted(m for m in ('jax', 'equinox', 'diffrax', 'optax', "
+             "'matplotlib', 'scipy') if m in sys.modules)); bd.Scene.default(); print('jax' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.split("\n")
+    assert out[0] == "[]" and out[1] == "True"
+    missing = [name for name in bd.__all__ if getattr(bd, name, None) is None]
+    assert not missing and {"simulate", "Plate", "montecarlo", "plot_bench", "Flag"} <= set(bd.__all__)
+    assert set(dir(bd)) >= set(bd.__all__)

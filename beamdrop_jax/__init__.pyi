@@ -1,0 +1,115 @@
+"""The public names of beamdrop_jax. The package imports each private module on first use of one of its names
+(`lazy_loader` reads this file), so `import beamdrop_jax` costs little more than importing JAX."""
+
+from ._checks import Flag as Flag, GRAVITY as GRAVITY
+from ._scene import (
+    Board as Board,
+    Contact as Contact,
+    Drop as Drop,
+    Housing as Housing,
+    Placement as Placement,
+    Scene as Scene,
+    board_ends as board_ends,
+    check_scene as check_scene,
+    scene_flags as scene_flags,
+)
+from ._scenefile import embedded_scenes as embedded_scenes, load_scene as load_scene, save_scene as save_scene
+from ._impact import ImpactMode as ImpactMode, ImpactResult as ImpactResult, routh_impulse as routh_impulse
+from ._kinematics import (
+    HousingImpact as HousingImpact,
+    approach_velocity as approach_velocity,
+    body_axes as body_axes,
+    contact_matrix as contact_matrix,
+    corner_impact as corner_impact,
+    housing_impact as housing_impact,
+    lowest_corner as lowest_corner,
+    support_jumps as support_jumps,
+)
+from ._clatter import (
+    Ending as Ending,
+    Impacts as Impacts,
+    corner_heights as corner_heights,
+    impact_sequence as impact_sequence,
+    next_contact as next_contact,
+)
+from ._motion import HalfSine as HalfSine, Impulse as Impulse, PulseTrain as PulseTrain, Record as Record
+from ._motion import JESD22_B111_CONDITION_B as JESD22_B111_CONDITION_B
+from ._beam import ENDS as ENDS, natural_frequencies as natural_frequencies
+from ._mounts import MountResult as MountResult, optimize_mounts as optimize_mounts
+from ._plate import EDGE_CODES as EDGE_CODES, Plate as Plate, PlateModes as PlateModes, plate_modes as plate_modes
+from ._board import unit_response as unit_response
+from ._peaks import FieldPeak as FieldPeak
+from ._simulate import (
+    Fields as Fields,
+    Gauges as Gauges,
+    Numerics as Numerics,
+    Peak as Peak,
+    Response as Response,
+    board_response as board_response,
+    drop_motion as drop_motion,
+    peak_deflection as peak_deflection,
+    peak_strain as peak_strain,
+    peak_stress as peak_stress,
+    plate_strain_map as plate_strain_map,
+    StrainMap as StrainMap,
+    response_fields as response_fields,
+    response_notes as response_notes,
+    simulate as simulate,
+    support_motion as support_motion,
+)
+from ._optimize import (
+    PlacementResult as PlacementResult,
+    drop_set as drop_set,
+    optimize_placement as optimize_placement,
+    placement_landscape as placement_landscape,
+    placement_from_unconstrained as placement_from_unconstrained,
+    placement_objective as placement_objective,
+    risk as risk,
+)
+from ._superposition import (
+    PlateTable as PlateTable,
+    SuperpositionTable as SuperpositionTable,
+    superposition_table as superposition_table,
+    table_numerics as table_numerics,
+    table_peaks as table_peaks,
+)
+from ._montecarlo import (
+    DropDistribution as DropDistribution,
+    MonteCarloResult as MonteCarloResult,
+    montecarlo as montecarlo,
+    montecarlo_numerics as montecarlo_numerics,
+    wilson_interval as wilson_interval,
+)
+from ._sensitivity import (
+    Sensitivity as Sensitivity,
+    scalar_fields as scalar_fields,
+    sensitivities as sensitivities,
+    smooth_peak_stress as smooth_peak_stress,
+)
+from ._campaign import (
+    STANDARDS as STANDARDS,
+    CampaignDrop as CampaignDrop,
+    CampaignResult as CampaignResult,
+    campaign as campaign,
+    campaign_drops as campaign_drops,
+)
+from ._opensees import (
+    FEResponse as FEResponse,
+    PlateFEResponse as PlateFEResponse,
+    opensees_board_response as opensees_board_response,
+    opensees_plate_response as opensees_plate_response,
+)
+from ._bench import numpy_peak_stress as numpy_peak_stress, run_bench as run_bench, stability_study as stability_study
+from ._plots import (
+    plot_deflected_board as plot_deflected_board,
+    plot_bench as plot_bench,
+    plot_campaign as plot_campaign,
+    plot_impact as plot_impact,
+    plot_impacts as plot_impacts,
+    plot_scene as plot_scene,
+    plot_montecarlo as plot_montecarlo,
+    plot_placement as plot_placement,
+    plot_plate_strain as plot_plate_strain,
+    plot_stability as plot_stability,
+    plot_stress_map as plot_stress_map,
+)
