@@ -74,6 +74,14 @@ def unit_response(t, omega, zeta, duration):
     return jnp.where(t >= 0, jnp.imag(Z) / omega_d, 0.0)
 
 
+def free_phasor(t, omega, zeta, duration):
+    """(Z, lam, omega_d) with unit_response(t + s) = Im(Z e^{lam s}) / omega_d for every s >= 0 with
+    t + s >= duration: the free vibration after the pulse, continued back to time t (exact for t >= duration)."""
+    Z_end, lam, omega_d, _, _ = _response_phasor(duration, omega, zeta, duration)
+    t = jnp.asarray(t, dtype=float_dtype())[..., None]
+    return Z_end * cexp(lam * (t - duration)), lam, omega_d
+
+
 def unit_response_jet(t, omega, zeta, duration):
     """(q, q', q'') of `unit_response` at t > 0, from Z' = lam Z + g(t), Z'' = lam Z' + g'(t) with g the pulse
     shape pi/(2 tau) sin(pi t / tau) on [0, tau] (zero for the impulse): no differentiation through exponentials."""

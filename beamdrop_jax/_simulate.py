@@ -16,7 +16,8 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._checks import float_dtype
 from ._beam import curvature_scale, modal_velocity_jumps, mode_shapes, natural_frequencies, wavenumbers
-from ._board import fundamental_period, unit_response, unit_response_jet
+from ._board import fundamental_period, free_phasor, unit_response, unit_response_jet
+from ._trig import cexp
 from ._checks import Flag, Range, as_float, as_int, as_real, combine, flag_if, is_concrete, raise_if_flagged, require
 from ._impact import LAWS, ImpactResult
 from ._integrate import SOLVERS, solve_modes
@@ -252,6 +253,36 @@ class ClosedFormModes(eqx.Module):
             return self.beta[0], R
         return jnp.ones_like(self.omega), jax.vmap(self)(t)
 
+    def train_grid_factors(self, s, overlap_points: int):
+        """(ones, R) on a pulse train's search grid t = times[i] + s[j] (window i, R of shape (K nt, n)), each
+        window cut at the next pulse's start (R = 0 there; the next window covers those times), so that only
+        earlier pulses act on it. The pulse's own response R(s) and the free-vibration factors e^{lam s} depend
+        only on the board and the pulse: batched drops share them. An earlier pulse acts as free vibration,
+        Im(Z e^{lam s}) / omega_d, except where it is still running (t_i - t_l + s < duration: the first
+        `overlap_points` of the window at most, corrected exactly there; a longer overlap evaluates every point)."""
+        K, nt = self.times.shape[0], s.shape[0]
+        own = unit_response(s[:, None], self.omega, self.zeta, self.duration)  # (nt, n)
+        lags = self.times[:, None] - self.times[None, :]  # (i, l): t_i - t_l
+        earlier = (jnp.arange(K)[:, None] > jnp.arange(K)[None, :])[..., None]
+        Z, lam, omega_d = free_phasor(lags, self.omega, self.zeta, self.duration)  # (i, l, n)
+        A = jnp.sum(jnp.where(earlier, self.beta[None] * Z, 0.0), axis=1)  # (i, n)
+        free = jnp.imag(A[:, None, :] * cexp(lam * s[:, None])[None]) / omega_d  # (i, j, n)
+        R = self.beta[:, None, :] * own[None] + free
+
+        head = s[:overlap_points]
+        i, l = (jnp.asarray(v) for v in zip(*[(i, l) for i in range(K) for l in range(i)]))  # pairs l < i
+        since = lags[i, l][:, None] + head  # (pair, j)
+        exact = unit_response(since[..., None], self.omega, self.zeta, self.duration)
+        continued = jnp.imag(Z[i, l][:, None, :] * cexp(lam * head[:, None])) / omega_d
+        fix = jnp.where((since < self.duration)[..., None], self.beta[l][:, None, :] * (exact - continued), 0.0)
+        R = R.at[i, :overlap_points].add(fix)
+
+        full = lambda: jax.vmap(self)((self.times[:, None] + s).reshape(-1)).reshape(K, nt, -1)  # noqa: E731
+        R = jax.lax.cond(jnp.sum(s < self.duration) <= overlap_points, lambda: R, full)
+        cut = jnp.concatenate([self.times[1:], jnp.full((1,), jnp.inf, self.times.dtype)])
+        inside = self.times[:, None] + s[None] < cut[:, None]
+        return jnp.ones_like(self.omega), jnp.where(inside[..., None], R, 0.0).reshape(K * nt, -1)
+
 
 def support_motion(scene: Scene, jumps) -> HalfSine:
     """The supports' motion in a drop: a half-sine of the contact's duration (an ideal impulse when it is 0)."""
@@ -294,6 +325,16 @@ def _time_grid(board: Board, motion, numerics: Numerics, nt: int):
     if isinstance(motion, PulseTrain):
         return motion.times[-1] + span, (motion.times[:, None] + unit * span).ravel()
     return span, unit * span
+
+
+def _grid_factors(modal, board: Board, motion, numerics: Numerics, t):
+    """`modal.grid_factors` on the search grid `t` of `_time_grid`; a pulse train's closed form by windows that
+    share the board's factors between batched drops (`ClosedFormModes.train_grid_factors`)."""
+    if isinstance(modal, ClosedFormModes) and isinstance(motion, PulseTrain) and motion.times.shape[0] > 1:
+        nt = t.shape[0] // motion.times.shape[0]
+        s = jnp.linspace(0.0, 1.0, nt) * _span(board, motion, numerics)
+        return modal.train_grid_factors(s, overlap_points=max(nt // 8, 2))
+    return modal.grid_factors(t)
 
 
 def _modal_solution(board: Board, motion, numerics: Numerics, window, mask):
@@ -384,7 +425,8 @@ def _setup(board: Board, motion, numerics: Numerics, with_check: bool) -> _Setup
     modal, failed = _modal_solution(model, motion, numerics, window, (k <= computed).astype(float_dtype()))
     x = jnp.linspace(0.0, 1.0, nx) * board.length
     # With refinement the grid only picks the searches' starts: no gradient flows through it, so none is built.
-    Q = (stop_gradient(modal).grid_factors(jax.lax.stop_gradient(t)) if numerics.refine else modal.grid_factors(t))
+    Q = (_grid_factors(*stop_gradient((modal, model, motion)), numerics, jax.lax.stop_gradient(t)) if numerics.refine
+         else _grid_factors(modal, model, motion, numerics, t))
     top = jnp.maximum(used, check) if with_check else used
     flags = flag_if(_window_points(model, numerics, top) < MIN_POINTS_PER_PERIOD, Flag.WINDOW_RANGE)
     curvature = jnp.ones(M, dtype=float_dtype()) if isinstance(board, Plate) else curvature_scale(board, M)

@@ -165,6 +165,33 @@ def test_pulse_train_superposes_shifted_responses():
     np.testing.assert_allclose(float(one.peak.stress), float(ref.peak.stress), rtol=1e-12)
 
 
+@pytest.mark.parametrize("case", ["apart", "overlapping", "padded", "damped impulse", "long pulse"])
+def test_windowed_train_factors_equal_the_sum_of_shifted_responses(case):
+    """The search grid's modal coordinates of a pulse train, built from factors shared between drops (each window
+    cut at the next pulse), equal the direct sum of every pulse's shifted unit response at each kept point."""
+    from beamdrop_jax._board import unit_response
+    from beamdrop_jax._simulate import ClosedFormModes
+
+    board = bd.Board(damping_ratio=0.03) if case == "damped impulse" else bd.Board()
+    omega = bd.natural_frequencies(board, 5)
+    tau = {"damped impulse": 0.0, "long pulse": 4e-3}.get(case, 5e-4)
+    times = {"apart": [0.0, 3.1e-3, 0.41], "overlapping": [0.0, 2e-4, 4.5e-4], "padded": [0.0, 1e-4, 1e-4],
+             "damped impulse": [0.0, 1e-3, 1.2e-3], "long pulse": [0.0, 1e-3, 6e-3]}[case]
+    beta = jnp.asarray(np.random.default_rng(3).normal(size=(3, 5)))
+    modal = ClosedFormModes(omega, board.damping_ratio, jnp.asarray(tau), beta, jnp.asarray(times))
+    s = jnp.linspace(0.0, 1.0, 65) * (tau + 2 * math.pi / float(omega[0]))
+    _, R = modal.train_grid_factors(s, overlap_points=8)
+    t = np.asarray(times)[:, None] + np.asarray(s)
+    cut = np.append(times[1:], np.inf)[:, None]
+    direct = sum(np.asarray(beta[p]) * np.asarray(unit_response(t[..., None] - times[p], omega, board.damping_ratio, tau))
+                 for p in range(3))
+    kept = t < cut
+    scale = np.abs(direct).max()
+    np.testing.assert_allclose(np.asarray(R).reshape(3, 65, 5)[kept], direct[kept], atol=1e-12 * scale)
+    assert np.all(np.asarray(R).reshape(3, 65, 5)[~kept] == 0)
+    assert kept[-1].all() and (case != "padded" or not kept[1].any())
+
+
 FIELDS = ["drop.height", "drop.orientation", "contact.friction", "contact.restitution", "drop.spin"]
 
 
