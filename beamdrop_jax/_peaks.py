@@ -74,12 +74,17 @@ def find_peak(
     newton_steps: int = 6,
     refine: bool = True,
     membrane: Float[Array, "r n"] | None = None,
+    windows: int = 1,
 ) -> FieldPeak:
     """Peaks of |field| (+ sum_k membrane_k q_k^2 when `membrane` is given) for each row of modal coefficients
     `coeffs` (rows share the modal solution and the grid), with `modal(t) -> q (n,)` the modal coordinates (a
     pytree callable with `jet(t) -> (q, q', q'')`, e.g. an `eqx.Module`), `Q = modal.grid_factors(t)` on the grid
     (see `field_on_grid`), and the board's deflection shapes or, where `curvature` (a bool or a 0/1 per row) holds,
     its curvature shapes (`_beam.mode_shapes`). Returns a `FieldPeak` of arrays (r,).
+
+    With `windows` > 1 the grid's times are that many windows of equal length (a pulse train's, one per pulse)
+    and each window gives its own `candidates`: peaks of nearly equal height in different windows are ranked by
+    refinement, not by the coarse grid.
 
     The rows' candidates are refined together in one loop over Newton steps (the loop is never itself
     vmapped: batching a loop re-traces its body, which made most of the tracing time)."""
@@ -111,6 +116,7 @@ def find_peak(
         return jax.vmap(coarse)(coeffs_g, membrane_g, curvature)
 
     cell_x, cell_t = x_g[1] - x_g[0], t_g[1] - t_g[0]
+    per_window = min(candidates, t.shape[0] // windows)
 
     def vertex(lo, mid, hi):
         # Offset (cells) of the parabola through three neighbouring grid values: a start inside the right cell.
@@ -123,7 +129,9 @@ def find_peak(
         left = jnp.concatenate([jnp.full((1,), -jnp.inf, A.dtype), envelope[:-1]])
         right = jnp.concatenate([envelope[1:], jnp.full((1,), -jnp.inf, A.dtype)])
         is_local = (envelope >= left) & (envelope >= right)
-        idx = _largest(jnp.where(is_local, envelope, -jnp.inf), min(candidates, envelope.shape[0]))
+        scores = jnp.where(is_local, envelope, -jnp.inf).reshape(windows, -1)
+        idx = jax.vmap(lambda v: _largest(v, per_window))(scores) + scores.shape[1] * jnp.arange(windows)[:, None]
+        idx = idx.ravel()
         where_x = A[:, idx].argmax(axis=0)
         nx, nt = A.shape
         ix_lo, ix_hi = jnp.maximum(where_x - 1, 0), jnp.minimum(where_x + 1, nx - 1)
@@ -134,7 +142,7 @@ def find_peak(
         t0 = jnp.clip(t_g[idx] + cell_t * vertex(A[where_x, it_lo], mid, A[where_x, it_hi]), t_g[0], t_g[-1])
         return x0, t0, jnp.sign(F[where_x, idx]), x_g[where_x], t_g[idx], mid
 
-    rows, k = coeffs.shape[0], min(candidates, t.shape[0])
+    rows, k = coeffs.shape[0], windows * per_window
     flat = lambda v: v.reshape(rows * k)  # noqa: E731 - (rows, candidates) -> one axis
     x0, t0, sign, x_grid, t_grid, f_grid = (flat(v) for v in jax.vmap(starts)(coeffs_g, membrane_g, curvature))
     of_row = jnp.repeat(jnp.arange(rows), k)

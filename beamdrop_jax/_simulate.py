@@ -443,13 +443,18 @@ def _membrane(board: Board, numerics: Numerics, rows, is_curvature) -> Array | N
     return jnp.stack([kappa2 / (2 * board.thickness) * (c != 0) * curv for c, curv in zip(rows, is_curvature)])
 
 
+def _windows(modal) -> int:
+    """Search windows: one per pulse of a closed-form pulse train (`_time_grid`)."""
+    return modal.times.shape[0] if isinstance(modal, ClosedFormModes) else 1
+
+
 def _search(setup: _Setup, board: Board, numerics: Numerics, coeffs, membrane=None, *, curvature) -> FieldPeak:
     """Peaks of the fields with modal coefficients `coeffs` (rows; plus the membrane term of each row when
     `membrane` is given) over the board's curvature shapes (rows where `curvature`, a tuple of bools, is True) or
     deflection shapes, in one batched search (one compiled copy)."""
     return find_peak(coeffs, setup.modal, setup.Q, setup.x, setup.t, board, setup.window, curvature=curvature,
                      membrane=membrane, candidates=numerics.candidates, newton_steps=numerics.newton_steps,
-                     refine=numerics.refine)
+                     refine=numerics.refine, windows=_windows(setup.modal))
 
 
 def _gauge_points(gauges):

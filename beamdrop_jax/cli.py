@@ -344,7 +344,8 @@ def cmd_montecarlo(args, output):
     scene = _scene(args)
     numerics = bd.Numerics(n_modes=args.n_modes) if args.n_modes else None
     if args.max_impacts:
-        numerics = dataclasses.replace(numerics or bd.montecarlo_numerics(scene), max_impacts=args.max_impacts)
+        numerics = (dataclasses.replace(numerics, max_impacts=args.max_impacts) if numerics
+                    else bd.montecarlo_numerics(scene, max_impacts=args.max_impacts))
     res = bd.montecarlo(scene, args.n, jax.random.PRNGKey(args.seed), numerics=numerics,
                         batch_size=args.batch_size, progress=not args.json)
     limit = args.allowable_microstrain * 1e-6
