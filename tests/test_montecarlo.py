@@ -82,6 +82,19 @@ def test_default_numerics_within_one_percent_of_converged(name, scene, distribut
         assert error.max() < 0.01, (name, superpose, error.max())
 
 
+def test_clattering_defaults_within_one_percent_of_converged():
+    """Three impacts per drop with `montecarlo_numerics(max_impacts=3)` against 32 modes with the dense, refined
+    search (a converged modal series); the windows' grids are built from factors shared between drops."""
+    scene, key = bd.Scene.default(), jax.random.PRNGKey(7)
+    lean_numerics = bd.montecarlo_numerics(scene, max_impacts=3)
+    assert lean_numerics.max_impacts == 3
+    converged = bd.montecarlo(scene, 256, key, numerics=bd.Numerics(n_modes=32, max_impacts=3), progress=False)
+    lean = bd.montecarlo(scene, 256, key, numerics=lean_numerics, progress=False)
+    assert converged.n_invalid == lean.n_invalid == 0
+    error = np.abs(np.asarray(lean.peak_stress) / np.asarray(converged.peak_stress) - 1)
+    assert error.max() < 0.01, error.max()
+
+
 @pytest.fixture(scope="module")
 def hard_drops():
     """2048 random drops: the superposed peaks and a thorough direct search of the same modes (16 grid points per
