@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._checks import GRAVITY
+from ._clatter import impact_sequence
 from ._montecarlo import DropDistribution, _evaluate, inner_batch, montecarlo, montecarlo_numerics, sample_axes
 from ._scene import Scene
 from ._simulate import Numerics
@@ -127,6 +128,16 @@ def numpy_peak_stress(scene: Scene, orientations, n_modes=6, nx=None, nt=None, d
     nx = nx or 4 * n_modes + 1
     nt = nt or 4 * (n_modes**2 + 8) + 1
     tt = (tau + 2 * math.pi / omega[0]) * np.linspace(0, 1, nt)[:, None]  # the pulse and one period
+    R = _numpy_unit_response(tt, omega, zeta, tau)
+    xs = np.linspace(0, L, nx)
+    shapes = np.sin(np.outer(xs, kap)) * -(kap**2)
+    curv = np.einsum("xk,tk,nk->nxt" if R.ndim == 2 else "xk,ntk,nk->nxt", shapes, R, beta, optimize=True)
+    return f(bd_.youngs_modulus) * f(bd_.thickness) / 2 * np.abs(curv).reshape(len(th), -1).max(-1)
+
+
+def _numpy_unit_response(tt, omega, zeta, tau):
+    """Modal response to a unit half-sine of duration `tau` (all > 0) or ideal impulse (all 0) at times `tt` >= 0,
+    in NumPy: the textbook partial fractions (singular at resonance, which random drops never hit exactly)."""
     wd = omega * math.sqrt(1 - zeta**2)
     lam = -zeta * omega + 1j * wd
     if np.all(tau > 0):
@@ -137,15 +148,36 @@ def numpy_peak_stress(scene: Scene, orientations, n_modes=6, nx=None, nt=None, d
         with np.errstate(divide="ignore", invalid="ignore"):
             p1 = (rest * np.exp(1j * Om * T) - elt) / (1j * Om - lam)
             p2 = (rest * np.exp(-1j * Om * T) - elt) / (-1j * Om - lam)
-        R = Om / 2 * np.imag((p1 - p2) / 2j) / wd
-    elif np.all(tau == 0):
-        R = np.exp(-zeta * omega * tt) * np.sin(wd * tt) / wd
-    else:
-        raise ValueError("durations: all > 0 (half-sines) or all 0 (ideal impulses)")
-    xs = np.linspace(0, L, nx)
-    shapes = np.sin(np.outer(xs, kap)) * -(kap**2)
-    curv = np.einsum("xk,tk,nk->nxt" if R.ndim == 2 else "xk,ntk,nk->nxt", shapes, R, beta, optimize=True)
-    return f(bd_.youngs_modulus) * f(bd_.thickness) / 2 * np.abs(curv).reshape(len(th), -1).max(-1)
+        return Om / 2 * np.imag((p1 - p2) / 2j) / wd
+    if np.all(tau == 0):
+        return np.exp(-zeta * omega * tt) * np.sin(wd * tt) / wd
+    raise ValueError("durations: all > 0 (half-sines) or all 0 (ideal impulses)")
+
+
+def numpy_train_peak_stress(scene: Scene, times, jumps, n_modes, nx=None, nt=None):
+    """Peak stress (Pa) of clattering drops of `scene` given their impacts (`times` (n, K) s and support `jumps`
+    (n, K, 2) m/s, e.g. from `bd.impact_sequence`), in NumPy: each pulse's shifted response summed on a grid of nt
+    points after each impact (the JAX search's windows), grid maximum. A peer for the board's response alone."""
+    f = lambda v: float(np.asarray(v))  # noqa: E731
+    board, tau = scene.board, f(scene.contact.duration)
+    L, E, h = f(board.length), f(board.youngs_modulus), f(board.thickness)
+    EI = E * f(board.width) * h**3 / 12
+    rhoA = f(board.density) * f(board.width) * h
+    kk = np.arange(1, n_modes + 1)
+    kap = kk * math.pi / L
+    omega = np.sqrt((EI * kap**4 + f(board.axial_force) * kap**2) / rhoA)
+    times, jumps = np.asarray(times, float), np.asarray(jumps, float)
+    beta = -(2 / (kk * math.pi)) * (jumps[..., :1] - (-1.0) ** kk * jumps[..., 1:])  # (n, K, modes)
+    nx = nx or 4 * n_modes + 1
+    nt = nt or 4 * (n_modes**2 + 8) + 1
+    s = (tau + 2 * math.pi / omega[0]) * np.linspace(0, 1, nt)
+    t = (times[:, :, None] + s).reshape(len(times), -1)  # (n, K nt)
+    since = t[:, :, None] - times[:, None, :]  # (n, K nt, K)
+    R = np.where(since[..., None] >= 0, _numpy_unit_response(np.maximum(since, 0)[..., None], omega,
+                                                              f(board.damping_ratio), tau), 0.0)
+    q = np.einsum("ntpk,npk->ntk", R, beta)
+    shapes = np.sin(np.outer(np.linspace(0, L, nx), kap)) * -(kap**2)
+    return E * h / 2 * np.abs(np.einsum("xk,ntk->nxt", shapes, q, optimize=True)).reshape(len(times), -1).max(-1)
 
 
 def numpy_superposed_peak_stress(scene: Scene, orientations, table):
@@ -212,8 +244,8 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     returns rows (method, settings, workload, seconds_per_drop, max_error, median_error, failures, drops, pareto)
     and, with `out`, writes `bench.json` (the rows and the stability study) there; `plot_bench` and
     `plot_stability` draw them. Two workloads of random drops: the scene's own contact duration (`FIXED`, every
-    method) and durations uniform on [0.2, 1] ms (`VARIED`: superposed Monte-Carlo and its NumPy peer), each
-    with its own reference; `pareto` marks the rows no row of the same workload beats in time and error."""
+    method), durations uniform on [0.2, 1] ms (`VARIED`: superposed Monte-Carlo and its NumPy peer) and up to 3
+    impacts per drop (`CLATTER`: clattering Monte-Carlo and its NumPy peer), each with its own reference; `pareto` marks the rows no row of the same workload beats in time and error."""
 
     if level not in LEVELS:
         raise ValueError(f"level = {level!r}; valid: {', '.join(LEVELS)}")
@@ -299,6 +331,29 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
         _median_time(numpy_varied, repeats) / tiled.size,
         numpy_peak_stress(scene, varied_drops.drop.orientation, varied_modes, durations=varied_drops.contact.duration),
         VARIED)
+
+    # Clattering, up to 3 impacts per drop: whole `montecarlo` calls with its clattering defaults, errors against
+    # 32 modes searched per drop; the peer sums the same modes' shifted responses in NumPy, given the impacts.
+    clatter = montecarlo_numerics(scene, max_impacts=3)
+    references[CLATTER] = np.asarray(montecarlo(scene, n, key, numerics=Numerics(n_modes=32, max_impacts=3),
+                                                progress=False).peak_stress)
+    many_clatter = n if tiny else 16384
+    vals = montecarlo(scene, n, key, numerics=clatter, progress=False).peak_stress
+    sec = _median_time(lambda: montecarlo(scene, many_clatter, key, numerics=clatter, progress=False),
+                       repeats) / many_clatter
+    add("montecarlo clattering", f"n_modes={clatter.n_modes}, 2 candidates per impact, whole call, {many_clatter} "
+        "drops", sec, vals, CLATTER)
+    impacts = jax.vmap(lambda d: impact_sequence(d, 3)[0], in_axes=(axes,))(drops)
+    tile = n if tiny else max(n, 1024)
+    times, jumps = (np.resize(np.asarray(v), (tile,) + v.shape[1:]) for v in (impacts.t, impacts.support_jumps))
+
+    def numpy_clatter():
+        return [numpy_train_peak_stress(scene, times[i:i + 256], jumps[i:i + 256], clatter.n_modes)
+                for i in range(0, tile, 256)]
+
+    add("peer: numpy closed form", f"n_modes={clatter.n_modes} grid max, given impacts, {tile} drops",
+        _median_time(numpy_clatter, repeats) / tile,
+        numpy_train_peak_stress(scene, impacts.t, impacts.support_jumps, clatter.n_modes), CLATTER)
 
     n_ode = min(n, 4 if tiny else 16 if quick else 64)
     solvers = ("Tsit5",) if tiny else ("Tsit5", "Dopri5", "Dopri8", "Kvaerno5", "ImplicitEuler")
@@ -402,6 +457,7 @@ def _support_jumps(scene):
 
 FIXED = "fixed duration"
 VARIED = "duration U[0.2, 1] ms"
+CLATTER = "up to 3 impacts"
 
 
 def pareto_front(rows) -> list[int]:

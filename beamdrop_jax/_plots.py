@@ -359,7 +359,8 @@ def plot_campaign(result, *, ax=None, limit: float | None = None, scene: str | N
 
 def plot_bench(rows, *, ax=None):
     """Log-log chart of max relative error of the peak stress against seconds per drop, the Pareto front of each
-    workload marked (rows as `run_bench` returns them; open markers: drops whose contact duration varies)."""
+    workload marked (rows as `run_bench` returns them; open markers: drops whose contact duration varies; half-filled:
+    clattering drops, up to 3 impacts each)."""
     fig, ax = _axes(ax, (8.0, 5.5))
     floor = 1e-16
     groups = {}
@@ -368,11 +369,11 @@ def plot_bench(rows, *, ax=None):
     styles = {}  # one marker and colour per method, filled for the fixed duration, open where it varies
     for (method, workload), rs in groups.items():
         marker, colour = styles.setdefault(method, ("osD^vP*Xh<>"[len(styles) % 11], f"C{len(styles) % 10}"))
-        varied = workload != "fixed duration"
+        other = workload != "fixed duration"
+        fill = dict(mfc="none") if workload.startswith("duration") else dict(fillstyle="left") if other else {}
         ax.loglog([r["seconds_per_drop"] for r in rs], [max(r["max_error"], floor) for r in rs], marker, ms=7,
-                  color=colour, alpha=0.8, mfc="none" if varied else colour,
-                  label=method + (f" ({workload})" if varied else ""))
-    for workload, style in (("fixed duration", "k-"), ("duration U[0.2, 1] ms", "k--")):
+                  color=colour, alpha=0.8, label=method + (f" ({workload})" if other else ""), **fill)
+    for workload, style in (("fixed duration", "k-"), ("duration U[0.2, 1] ms", "k--"), ("up to 3 impacts", "k:")):
         front = sorted((r for r in rows if r.get("pareto") and r.get("workload", "fixed duration") == workload),
                        key=lambda r: r["seconds_per_drop"])
         if len(front) > 1:

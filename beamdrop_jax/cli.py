@@ -371,7 +371,7 @@ def cmd_bench(args, output):
         output.summary(latency_bench(repeats=args.repeats), "beamdrop bench --latency: wall time against a bare "
                                                             "JAX process, median of the repeats")
         return
-    from ._bench import PEERS, VARIED, ratio_at
+    from ._bench import CLATTER, PEERS, VARIED, ratio_at
 
     level = "tiny" if args.tiny else "quick" if args.quick else "full"
     output.say(f"beamdrop bench ({level}): peak-stress error against 32 modes refined (f64), seconds per drop")
@@ -379,6 +379,8 @@ def cmd_bench(args, output):
     ratios = {f"speed_ratio_at_1pct_error_vs_{peer[6:].replace(' ', '_')}": ratio_at(rows, peer) for peer in PEERS}
     ratios["varying_duration_speed_ratio_at_1pct_error_vs_numpy_closed_form"] = ratio_at(
         rows, "peer: numpy closed form", workload=VARIED)
+    ratios["clattering_speed_ratio_at_1pct_error_vs_numpy_closed_form"] = ratio_at(
+        rows, "peer: numpy closed form", workload=CLATTER)
     output.summary(ratios, "Speed ratios at 1 % error (n/a: no row meets it)")
     output.wrote(Path(args.out) / "bench.json")
     if not args.no_plots:
