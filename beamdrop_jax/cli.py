@@ -402,10 +402,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"beamdrop {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
+    from ._scenefile import embedded_scenes
+
+    scenes = ", ".join(embedded_scenes())
+
     def command(name, help_text, description=None):
         p = sub.add_parser(name, help=help_text, description=(description or help_text).replace("%%", "%"))
         p.add_argument("--scene", metavar="FILE_OR_NAME",
-                       help="scene TOML file, or an embedded scene: default, jedec, thesis (default: default)")
+                       help=f"scene TOML file, or an embedded scene: {scenes} (default: default)")
         p.add_argument("--out", default="beamdrop-out", metavar="DIR",
                        help="folder for figures and tables, created if needed (default: beamdrop-out)")
         p.add_argument("--float32", action="store_true", help="compute in float32 (default: float64)")

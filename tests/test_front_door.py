@@ -352,3 +352,10 @@ def test_import_loads_modules_on_first_use_and_every_public_name_resolves():
     missing = [name for name in bd.__all__ if getattr(bd, name, None) is None]
     assert not missing and {"simulate", "Plate", "montecarlo", "plot_bench", "Flag"} <= set(bd.__all__)
     assert set(dir(bd)) >= set(bd.__all__)
+
+
+def test_scene_help_names_every_embedded_scene(capsys):
+    with pytest.raises(SystemExit):
+        main(["drop", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert len(bd.embedded_scenes()) >= 4 and all(name in out for name in bd.embedded_scenes())
