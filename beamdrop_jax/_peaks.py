@@ -257,6 +257,15 @@ def _outside_mounts(plate, x, y):
     return x, y
 
 
+def near_mounts(plate, points) -> Array:
+    """Which grid points (x, y) lie inside a mount's disc (the search leaves them out); all False without mounts."""
+    x, y = points
+    if plate.mounts is None:
+        return jnp.zeros(x.shape, bool)
+    return jnp.any(jnp.hypot(x[:, None] - plate.mounts[:, 0], y[:, None] - plate.mounts[:, 1])
+                   < plate.mount_radius * (1 - 1e-9), axis=1)
+
+
 def plate_starts(plate, measure: Callable, fields, points, candidates: int, times=None, at_times=None):
     """Where a plate search starts: the `candidates` largest local maxima in time of the measure's largest value
     over the grid's points (mount discs left out), and the point that has it at each of those times.
@@ -266,13 +275,8 @@ def plate_starts(plate, measure: Callable, fields, points, candidates: int, time
     which XLA fuses with the expression that makes it (the grid is never stored); the argmax, several times the
     cost of a max on CPU, runs at the candidate times alone. With `times` (indices) and `at_times` (the fields at
     those times, each (points, len(times))) instead of `fields`, the search starts at those times."""
-    x, y = points
-    if plate.mounts is None:
-        outside = lambda A: A  # noqa: E731
-    else:
-        near = jnp.any(jnp.hypot(x[:, None] - plate.mounts[:, 0], y[:, None] - plate.mounts[:, 1])
-                       < plate.mount_radius * (1 - 1e-9), axis=1)
-        outside = lambda A: jnp.where(near[:, None], -jnp.inf, A)  # noqa: E731
+    near = near_mounts(plate, points)
+    outside = lambda A: jnp.where(near[:, None], -jnp.inf, A)  # noqa: E731
     if times is None:
         envelope = outside(measure(plate, *fields)).max(axis=0)
         left = jnp.concatenate([jnp.full((1,), -jnp.inf, envelope.dtype), envelope[:-1]])

@@ -358,14 +358,6 @@ def require_single(scene: Scene, what: str) -> None:
                                  "(for many drops use jax.vmap or bd.montecarlo)")
 
 
-def require_beam(scene: Scene, what: str) -> None:
-    """Raise `ValueError` if the scene's board is not a beam: `what` does not model plates yet."""
-    if not isinstance(scene.board, Board):
-        raise ValueError(f"{what} works on beam boards (bd.Board) so far, and this scene's board is a "
-                         f"{type(scene.board).__name__}; for plates use bd.peak_stress (and jax.grad of it), "
-                         "bd.sensitivities, bd.montecarlo or bd.optimize_placement")
-
-
 def check_scene(scene: Scene) -> None:
     """Raise `ValueError` naming the field, its value and the valid range if a concrete scene (or batch of scenes)
     has any flagged problem (no-op under tracing)."""

@@ -1,15 +1,18 @@
 """Which scene fields matter? Exact derivatives and elasticities of the peak, and a smooth peak for objectives."""
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._scene import Scene, _section_classes, require_beam
-from ._simulate import Numerics, _setup, drop_motion, peak_deflection, peak_strain, peak_stress
+from ._scene import Scene, _section_classes
+from ._simulate import Numerics, _plate_points, _setup, drop_motion, peak_deflection, peak_strain, peak_stress
 from ._beam import mode_shapes
-from ._peaks import field_on_grid
+from ._peaks import field_on_grid, near_mounts
+from ._plate import Plate, surface_stress
 
 _PEAKS = {"stress": peak_stress, "strain": peak_strain, "deflection": peak_deflection}
 
@@ -72,14 +75,14 @@ def sensitivities(scene: Scene, numerics: Numerics | None = None, quantity: str 
 
 
 def smooth_peak_stress(scene: Scene, numerics: Numerics | None = None, temperature: float = 0.01) -> Float[Array, ""]:
-    """A smooth stand-in for the peak stress: log-sum-exp of |stress| over the (x, t) search grid at temperature
-    T = `temperature` x (grid maximum).
+    """A smooth stand-in for the peak stress: log-sum-exp of |stress| over the search grid ((x, t) on a beam; on a
+    plate (x, y, t), the largest principal stress, mount discs left out) at temperature T = `temperature` x (grid
+    maximum).
 
     Bias against the grid maximum m: 0 <= smooth - m <= T ln(N) for N grid points (N ~ 7e4 by default, so at most
     11 T, i.e. 11 % for temperature 0.01), and the grid maximum itself undershoots the refined peak by the grid's
     resolution. Use it when an objective wants a gradient that blends nearby peaks; `peak_stress` is the true max.
     """
-    require_beam(scene, "bd.smooth_peak_stress")
     if not temperature > 0:
         raise ValueError(f"temperature = {temperature}; valid: > 0")
     numerics = Numerics() if numerics is None else numerics
@@ -90,9 +93,17 @@ def smooth_peak_stress(scene: Scene, numerics: Numerics | None = None, temperatu
 def _smooth(scene, numerics, temperature):
     board = scene.board
     motion = drop_motion(scene, numerics)[0]
-    S = _setup(board, motion, numerics, with_check=False)
-    stress = jnp.abs(field_on_grid(S.curvature * (S.k <= S.used), S.Q, mode_shapes(board, S.x, S.k.shape[0], True)))
-    stress = board.youngs_modulus * board.thickness / 2 * stress
+    # The grid is the answer here, not a search's starts: it must carry gradients (`refine` drops them).
+    S = _setup(board, motion, dataclasses.replace(numerics, refine=False), with_check=False)
+    mask = S.curvature * (S.k <= S.used)
+    if isinstance(board, Plate):
+        _, _, points, shapes = _plate_points(board, S.modes)
+        _, kxx, kyy, kxy = (field_on_grid(mask, S.Q, v) for v in shapes)
+        stress = jnp.where(near_mounts(board, points)[:, None], 0.0, surface_stress(board, kxx, kyy, kxy))
+    else:
+        stress = jnp.abs(field_on_grid(mask, S.Q, mode_shapes(board, S.x, S.k.shape[0], True)))
+        stress = board.youngs_modulus * board.thickness / 2 * stress
+    # The shift m cancels (it only keeps exp finite); the temperature scales with the peak, so it carries a gradient.
     m = jax.lax.stop_gradient(stress.max())
-    T = temperature * m
+    T = temperature * stress.max()
     return m + T * jnp.log(jnp.sum(jnp.exp((stress - m) / T)))

@@ -190,6 +190,9 @@ def test_smooth_peak_bias_is_bounded():
         assert grid_max_lower <= smooth <= true * (1 + temperature * math.log(nx * nt)) * 1.0001
     g = jax.grad(lambda s: bd.smooth_peak_stress(s, numerics, 0.01))(scene)
     assert all(np.all(np.isfinite(np.asarray(v))) for v in jax.tree_util.tree_leaves(g))
+    # The stress is linear in the impact speed sqrt(2 g h): d/dh = value / (2 h), exactly.
+    value, height = float(bd.smooth_peak_stress(scene, numerics, 0.01)), float(scene.drop.height)
+    np.testing.assert_allclose(float(g.drop.height), value / (2 * height), rtol=1e-9)
 
 
 # ----------------------------------------------------------------------------------------------------------------
