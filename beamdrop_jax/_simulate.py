@@ -264,7 +264,10 @@ class ClosedFormModes(eqx.Module):
         own = unit_response(s[:, None], self.omega, self.zeta, self.duration)  # (nt, n)
         lags = self.times[:, None] - self.times[None, :]  # (i, l): t_i - t_l
         earlier = (jnp.arange(K)[:, None] > jnp.arange(K)[None, :])[..., None]
-        Z, lam, omega_d = free_phasor(lags, self.omega, self.zeta, self.duration)  # (i, l, n)
+        # Later pulses' lags are negative, where e^{lam (lag - duration)} overflows with damping: masked before the
+        # exponential, so that no inf reaches a gradient through the `where` below.
+        safe_lags = jnp.where(earlier[..., 0], lags, 0.0)
+        Z, lam, omega_d = free_phasor(safe_lags, self.omega, self.zeta, self.duration)  # (i, l, n)
         A = jnp.sum(jnp.where(earlier, self.beta[None] * Z, 0.0), axis=1)  # (i, n)
         free = jnp.imag(A[:, None, :] * cexp(lam * s[:, None])[None]) / omega_d  # (i, j, n)
         R = self.beta[:, None, :] * own[None] + free
