@@ -82,9 +82,10 @@ def find_peak(
     (see `field_on_grid`), and the board's deflection shapes or, where `curvature` (a bool or a 0/1 per row) holds,
     its curvature shapes (`_beam.mode_shapes`). Returns a `FieldPeak` of arrays (r,).
 
-    With `windows` > 1 the grid's times are that many windows of equal length (a pulse train's, one per pulse)
-    and each window gives its own `candidates`: peaks of nearly equal height in different windows are ranked by
-    refinement, not by the coarse grid.
+    With `windows` > 1 the grid's times are that many windows of equal length (a pulse train's, one per pulse),
+    each window nominates its own `candidates`, and the `candidates` best of them by their parabolic
+    interpolation through the neighbouring grid values are refined: peaks of nearly equal height in different
+    windows are ranked by the interpolated value, not by the coarse grid's.
 
     The rows' candidates are refined together in one loop over Newton steps (the loop is never itself
     vmapped: batching a loop re-traces its body, which made most of the tracing time)."""
@@ -119,9 +120,11 @@ def find_peak(
     per_window = min(candidates, t.shape[0] // windows)
 
     def vertex(lo, mid, hi):
-        # Offset (cells) of the parabola through three neighbouring grid values: a start inside the right cell.
+        # Offset (cells) of the parabola through three neighbouring grid values, a start inside the right cell,
+        # and the parabola's gain there over the middle value.
         curv = lo - 2 * mid + hi
-        return jnp.clip(0.5 * (lo - hi) / jnp.where(curv < 0, curv, -1.0), -0.5, 0.5) * (curv < 0)
+        u = jnp.clip(0.5 * (lo - hi) / jnp.where(curv < 0, curv, -1.0), -0.5, 0.5) * (curv < 0)
+        return u, u * (0.5 * (hi - lo) + 0.5 * curv * u)
 
     def starts(c, m, cv):
         # Candidates: the largest local maxima in time of the spatial envelope (a lone spike at an end counts).
@@ -137,12 +140,18 @@ def find_peak(
         ix_lo, ix_hi = jnp.maximum(where_x - 1, 0), jnp.minimum(where_x + 1, nx - 1)
         it_lo, it_hi = jnp.maximum(idx - 1, 0), jnp.minimum(idx + 1, nt - 1)
         mid = A[where_x, idx]
+        (ux, gain_x), (ut, gain_t) = vertex(A[ix_lo, idx], mid, A[ix_hi, idx]), vertex(A[where_x, it_lo], mid,
+                                                                                     A[where_x, it_hi])
         # (Clipped: a peak at a clamped end has its vertex outside the board.)
-        x0 = jnp.clip(x_g[where_x] + cell_x * vertex(A[ix_lo, idx], mid, A[ix_hi, idx]), x_g[0], x_g[-1])
-        t0 = jnp.clip(t_g[idx] + cell_t * vertex(A[where_x, it_lo], mid, A[where_x, it_hi]), t_g[0], t_g[-1])
-        return x0, t0, jnp.sign(F[where_x, idx]), x_g[where_x], t_g[idx], mid
+        x0 = jnp.clip(x_g[where_x] + cell_x * ux, x_g[0], x_g[-1])
+        t0 = jnp.clip(t_g[idx] + cell_t * ut, t_g[0], t_g[-1])
+        out = x0, t0, jnp.sign(F[where_x, idx]), x_g[where_x], t_g[idx], mid
+        if windows == 1:
+            return out
+        best = _largest(mid + gain_x + gain_t, min(candidates, idx.shape[0]))
+        return tuple(v[best] for v in out)
 
-    rows, k = coeffs.shape[0], windows * per_window
+    rows, k = coeffs.shape[0], per_window if windows == 1 else min(candidates, windows * per_window)
     flat = lambda v: v.reshape(rows * k)  # noqa: E731 - (rows, candidates) -> one axis
     x0, t0, sign, x_grid, t_grid, f_grid = (flat(v) for v in jax.vmap(starts)(coeffs_g, membrane_g, curvature))
     of_row = jnp.repeat(jnp.arange(rows), k)

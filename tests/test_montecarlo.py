@@ -82,7 +82,7 @@ def test_default_numerics_within_one_percent_of_converged(name, scene, distribut
         assert error.max() < 0.01, (name, superpose, error.max())
 
 
-def test_clattering_defaults_within_one_percent_of_converged():
+def test_clattering_defaults_within_half_a_percent_of_converged():
     """Three impacts per drop with `montecarlo_numerics(max_impacts=3)` against 32 modes with the dense, refined
     search (a converged modal series); the windows' grids are built from factors shared between drops."""
     scene, key = bd.Scene.default(), jax.random.PRNGKey(7)
@@ -92,7 +92,7 @@ def test_clattering_defaults_within_one_percent_of_converged():
     lean = bd.montecarlo(scene, 256, key, numerics=lean_numerics, progress=False)
     assert converged.n_invalid == lean.n_invalid == 0
     error = np.abs(np.asarray(lean.peak_stress) / np.asarray(converged.peak_stress) - 1)
-    assert error.max() < 0.01, error.max()
+    assert error.max() < 0.005, error.max()
 
 
 @pytest.fixture(scope="module")
