@@ -341,8 +341,8 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     vals = montecarlo(scene, n, key, numerics=clatter, progress=False).peak_stress
     sec = _median_time(lambda: montecarlo(scene, many_clatter, key, numerics=clatter, progress=False),
                        repeats) / many_clatter
-    add("montecarlo clattering", f"n_modes={clatter.n_modes}, 2 candidates per impact, whole call, {many_clatter} "
-        "drops", sec, vals, CLATTER)
+    add("montecarlo clattering", f"n_modes={clatter.n_modes}, {clatter.candidates} candidates ranked across impacts, "
+        f"whole call, {many_clatter} drops", sec, vals, CLATTER)
     impacts = jax.vmap(lambda d: impact_sequence(d, 3)[0], in_axes=(axes,))(drops)
     tile = n if tiny else max(n, 1024)
     times, jumps = (np.resize(np.asarray(v), (tile,) + v.shape[1:]) for v in (impacts.t, impacts.support_jumps))
