@@ -5,7 +5,6 @@ import math
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
 
 from ._beam import natural_frequencies
 from ._checks import float_dtype
@@ -72,6 +71,18 @@ def unit_response(t, omega, zeta, duration):
     """
     Z, _, omega_d, _, t = _response_phasor(t, omega, zeta, duration)
     return jnp.where(t >= 0, jnp.imag(Z) / omega_d, 0.0)
+
+
+def pulse_phasors(s, omega, zeta, duration):
+    """(Z_sin, Z_cos, lam, omega_d, Omega) at times s >= 0 from rest, Omega = pi / tau. Z_sin is the unit
+    response's phasor (q = Im(Z) / omega_d), driven by (pi / (2 tau)) sin(Omega s); Z_cos, the response to
+    (pi / (2 tau)) cos(Omega s), is Z_sin' / Omega, valid while the pulse runs (s <= tau). A pulse that has run
+    for `lag` goes on as Z(lag + s) = Z(lag) e^{lam s} + cos(Omega lag) Z_sin(s) + sin(Omega lag) Z_cos(s) while
+    lag + s <= tau (its forcing sin(Omega (lag + s)), expanded): with e^{lam s}, Z_sin and Z_cos on a grid shared
+    by every drop, a running pulse costs a few multiply-adds per point."""
+    Z, lam, omega_d, (is_pulse, tau_s, Omega, t_pos), _ = _response_phasor(s, omega, zeta, duration)
+    force = jnp.where(is_pulse & (t_pos <= tau_s), math.pi / (2.0 * tau_s) * sincos(Omega * t_pos)[0], 0.0)
+    return Z, (lam * Z + force) / Omega, lam, omega_d, Omega
 
 
 def free_phasor(t, omega, zeta, duration):

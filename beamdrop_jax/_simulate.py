@@ -16,8 +16,8 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._checks import float_dtype
 from ._beam import curvature_scale, modal_velocity_jumps, mode_shapes, natural_frequencies, wavenumbers
-from ._board import fundamental_period, free_phasor, unit_response, unit_response_jet
-from ._trig import cexp
+from ._board import fundamental_period, free_phasor, pulse_phasors, unit_response, unit_response_jet
+from ._trig import cexp, sincos
 from ._checks import Flag, Range, as_float, as_int, as_real, combine, flag_if, is_concrete, raise_if_flagged, require
 from ._impact import LAWS, ImpactResult
 from ._integrate import SOLVERS, solve_modes
@@ -256,32 +256,39 @@ class ClosedFormModes(eqx.Module):
     def train_grid_factors(self, s, overlap_points: int):
         """(ones, R) on a pulse train's search grid t = times[i] + s[j] (window i, R of shape (K nt, n)), each
         window cut at the next pulse's start (R = 0 there; the next window covers those times), so that only
-        earlier pulses act on it. The pulse's own response R(s) and the free-vibration factors e^{lam s} depend
-        only on the board and the pulse: batched drops share them. An earlier pulse acts as free vibration,
-        Im(Z e^{lam s}) / omega_d, except where it is still running (t_i - t_l + s < duration: the first
-        `overlap_points` of the window at most, corrected exactly there; a longer overlap evaluates every point)."""
+        earlier pulses act on it. The pulse's own response, the free-vibration factors e^{lam s} and the running
+        pulse's factors (`pulse_phasors`) depend only on the board and the pulse: batched drops share them. An
+        earlier pulse acts as free vibration, Im(Z e^{lam s}) / omega_d, except where it is still running
+        (t_i - t_l + s < duration), corrected exactly there: on the first `overlap_points` of each window, or on
+        all of them when the pulse is longer."""
         K, nt = self.times.shape[0], s.shape[0]
-        own = unit_response(s[:, None], self.omega, self.zeta, self.duration)  # (nt, n)
+        Z_sin, Z_cos, lam, omega_d, Omega = pulse_phasors(s[:, None], self.omega, self.zeta, self.duration)
+        own, own_cos = jnp.imag(Z_sin) / omega_d, jnp.imag(Z_cos) / omega_d  # (nt, n)
+        decay = cexp(lam * s[:, None])
         lags = self.times[:, None] - self.times[None, :]  # (i, l): t_i - t_l
         earlier = (jnp.arange(K)[:, None] > jnp.arange(K)[None, :])[..., None]
         # Later pulses' lags are negative, where e^{lam (lag - duration)} overflows with damping: masked before the
-        # exponential, so that no inf reaches a gradient through the `where` below.
+        # exponential, so that no inf reaches a gradient through the `where`s below.
         safe_lags = jnp.where(earlier[..., 0], lags, 0.0)
-        Z, lam, omega_d = free_phasor(safe_lags, self.omega, self.zeta, self.duration)  # (i, l, n)
-        A = jnp.sum(jnp.where(earlier, self.beta[None] * Z, 0.0), axis=1)  # (i, n)
-        free = jnp.imag(A[:, None, :] * cexp(lam * s[:, None])[None]) / omega_d  # (i, j, n)
-        R = self.beta[:, None, :] * own[None] + free
+        Z_free, _, _ = free_phasor(safe_lags, self.omega, self.zeta, self.duration)  # (i, l, n)
+        A = jnp.sum(jnp.where(earlier, self.beta[None] * Z_free, 0.0), axis=1)  # (i, n)
+        R = self.beta[:, None, :] * own[None] + jnp.imag(A[:, None, :] * decay[None]) / omega_d  # (i, j, n)
 
-        head = s[:overlap_points]
-        i, l = (jnp.asarray(v) for v in zip(*[(i, l) for i in range(K) for l in range(i)]))  # pairs l < i
-        since = lags[i, l][:, None] + head  # (pair, j)
-        exact = unit_response(since[..., None], self.omega, self.zeta, self.duration)
-        continued = jnp.imag(Z[i, l][:, None, :] * cexp(lam * head[:, None])) / omega_d
-        fix = jnp.where((since < self.duration)[..., None], self.beta[l][:, None, :] * (exact - continued), 0.0)
-        R = R.at[i, :overlap_points].add(fix)
+        # A pulse still running at a later window's start: its exact continuation less the free one.
+        Z_lag = pulse_phasors(safe_lags[..., None], self.omega, self.zeta, self.duration)[0]  # (i, l, n)
+        sin_lag, cos_lag = sincos(Omega * safe_lags)
 
-        full = lambda: jax.vmap(self)((self.times[:, None] + s).reshape(-1)).reshape(K, nt, -1)  # noqa: E731
-        R = jax.lax.cond(jnp.sum(s < self.duration) <= overlap_points, lambda: R, full)
+        def running(p):
+            rows = [jnp.zeros_like(own[:p])]
+            for i in range(1, K):
+                fix = [jnp.where((lags[i, l] + s[:p] < self.duration)[:, None], self.beta[l] * (
+                    jnp.imag((Z_lag[i, l] - Z_free[i, l]) * decay[:p]) / omega_d
+                    + cos_lag[i, l] * own[:p] + sin_lag[i, l] * own_cos[:p]), 0.0) for l in range(i)]
+                rows.append(sum(fix))
+            return jnp.stack(rows)
+
+        head = lambda: jnp.pad(running(overlap_points), ((0, 0), (0, nt - overlap_points), (0, 0)))  # noqa: E731
+        R = R + jax.lax.cond(jnp.sum(s < self.duration) <= overlap_points, head, lambda: running(nt))
         cut = jnp.concatenate([self.times[1:], jnp.full((1,), jnp.inf, self.times.dtype)])
         inside = self.times[:, None] + s[None] < cut[:, None]
         return jnp.ones_like(self.omega), jnp.where(inside[..., None], R, 0.0).reshape(K * nt, -1)

@@ -197,6 +197,32 @@ def test_windowed_train_factors_equal_the_sum_of_shifted_responses(case):
     assert kept[-1].all() and (case != "padded" or not kept[1].any())
 
 
+def test_windowed_train_factors_with_a_duration_per_drop_equal_the_sum_of_shifted_responses():
+    """Batched drops with their own contact durations (Monte-Carlo over the duration): a short pulse corrected on
+    the window's head and a long one corrected everywhere, side by side in one vmapped call."""
+    from beamdrop_jax._board import unit_response
+    from beamdrop_jax._simulate import ClosedFormModes
+
+    board = bd.Board()
+    omega = bd.natural_frequencies(board, 5)
+    taus = np.array([5e-4, 4e-3])
+    times = np.array([[0.0, 2e-4, 4.5e-4], [0.0, 1e-3, 2.5e-3]])
+    beta = jnp.asarray(np.random.default_rng(4).normal(size=(2, 3, 5)))
+    unit = jnp.linspace(0.0, 1.0, 65)
+
+    def factors(tau, t0, b):
+        s = unit * (tau + 2 * math.pi / omega[0])
+        return ClosedFormModes(omega, board.damping_ratio, tau, b, t0).train_grid_factors(s, overlap_points=8)[1]
+
+    R = np.asarray(jax.vmap(factors)(jnp.asarray(taus), jnp.asarray(times), beta)).reshape(2, 3, 65, 5)
+    for d in range(2):
+        t = times[d][:, None] + np.asarray(unit) * (taus[d] + 2 * math.pi / float(omega[0]))
+        direct = sum(np.asarray(beta[d, p]) * np.asarray(unit_response(t[..., None] - times[d, p], omega, 0.0,
+                                                                       taus[d])) for p in range(3))
+        kept = t < np.append(times[d, 1:], np.inf)[:, None]
+        np.testing.assert_allclose(R[d][kept], direct[kept], atol=1e-12 * np.abs(direct).max())
+
+
 def test_windowed_train_factors_have_finite_gradients_on_a_damped_board_long_after_impact():
     """A later pulse's negative lag would overflow e^{lam (lag - duration)} on a damped board; the gradient through
     the masked terms stays finite."""
