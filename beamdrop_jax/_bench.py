@@ -20,6 +20,7 @@ from ._montecarlo import DropDistribution, _evaluate, inner_batch, montecarlo, m
 from ._scene import Scene
 from ._simulate import Numerics
 from ._superposition import superposition_table, table_numerics
+from ._compile import jit
 
 REFERENCE = Numerics(n_modes=32)
 
@@ -526,7 +527,7 @@ def stability_study(level: str = "quick", progress=True) -> dict:
             window = jnp.asarray(5e-4 + 2 * math.pi / float(natural_frequencies(board, 1)[0]))
             rtol = 1e-3 if solver == "ImplicitEuler" else 1e-6
 
-            @jax.jit
+            @jit
             def solve(board, rtol=rtol, m=m, solver=solver):
                 modes, failed = solve_modes(board, motion, m, window, jnp.ones(m), solver=solver, rtol=rtol,
                                             atol=rtol * 1e-6, max_steps=20000)

@@ -27,7 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._checks import Flag, Range, array_module, as_float, combine, flag_if, float_dtype, is_concrete
+from ._checks import Flag, Range, array_module, as_float, combine, flag_if, is_concrete
+from ._compile import jit
 
 
 class ImpactMode(enum.IntEnum):
@@ -251,7 +252,7 @@ def routh_impulse(
     return _routh(B, v0, mu, e, law)
 
 
-@functools.partial(jax.jit, static_argnums=4)  # one compiled program, not one per operation, when called eagerly
+@functools.partial(jit, static_argnums=4)  # one compiled program, not one per operation, when called eagerly
 def _routh(B, v0, mu, e, law: str) -> ImpactResult:
     separating = v0[1] > 0
     # Separating contacts are computed as if C0 = 0 so every intermediate stays finite; the result is zeroed.

@@ -23,6 +23,7 @@ from ._checks import Flag
 from ._scene import Scene, check_scene
 from ._simulate import Numerics, _scene_peaks
 from ._superposition import superposes, superposition_table, table_numerics, table_peaks
+from ._compile import filter_jit
 
 _AHEAD = 2
 
@@ -245,7 +246,7 @@ def inner_batch(numerics: Numerics, batch: int, n_devices: int = 1) -> int:
     return -(-inner // n_devices) * n_devices
 
 
-@eqx.filter_jit
+@filter_jit
 def _evaluate(samples, axes, numerics, grid_deflection=False, inner=None):
     """Peaks (stress, strain, deflection, flags) of a batch of drops, `inner` drops vmapped at a time in a loop
     (`inner` must divide the batch; None: all at once). Drop i goes to lane i // steps of step i % steps, so a

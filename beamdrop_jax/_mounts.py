@@ -19,6 +19,7 @@ from ._optimize import OBJECTIVES, drop_set, risk
 from ._plate import Plate
 from ._scene import Scene, check_scene
 from ._simulate import Numerics, _gauge_points, _scene_peaks, _simulate
+from ._compile import filter_jit
 
 
 class MountResult(eqx.Module):
@@ -142,7 +143,7 @@ def optimize_mounts(
     others = jax.random.uniform(key, (starts - 1,) + z0.shape, minval=-2.5, maxval=2.5) * (span > 0)
     Z = jnp.concatenate([z0[None], others])
 
-    @eqx.filter_jit
+    @filter_jit
     def step(Z, state):
         values, grads = jax.vmap(jax.value_and_grad(f))(Z)
         updates, state = jax.vmap(optimizer.update)(grads, state, Z)
@@ -156,7 +157,7 @@ def optimize_mounts(
         best_v, best_z = jnp.where(improved, values, best_v), jnp.where(improved[:, None, None], Z, best_z)
         history.append(values)
         Z = Z_new
-    final = eqx.filter_jit(jax.vmap(f))(Z)
+    final = filter_jit(jax.vmap(f))(Z)
     improved = jnp.isfinite(final) & (final < best_v)
     best_v, best_z = jnp.where(improved, final, best_v), jnp.where(improved[:, None, None], Z, best_z)
     winner = int(jnp.argmin(best_v))

@@ -13,13 +13,14 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Float
 from tqdm import tqdm
 
 from ._checks import float_dtype
 from ._checks import Flag, combine
 from ._scene import Placement, Scene, check_scene, scene_flags
 from ._simulate import Numerics, peak_stress
+from ._compile import filter_jit
 
 OBJECTIVES = ("mean", "max", "cvar")
 
@@ -242,7 +243,7 @@ def optimize_placement(
 
 
 
-@eqx.filter_jit
+@filter_jit
 def _drop_flags(drops: Scene, law: str):
     from ._kinematics import housing_impact
 
@@ -270,7 +271,7 @@ def _default_optimizer():
     return optax.adam(0.05)
 
 
-@eqx.filter_jit
+@filter_jit
 def _step(U, state, scene, drops, optimizer, config):
     f = placement_objective(scene, drops, *config)
     values, grads = jax.vmap(jax.value_and_grad(f))(U)
@@ -280,7 +281,7 @@ def _step(U, state, scene, drops, optimizer, config):
     return optax.apply_updates(U, updates), state, values
 
 
-@eqx.filter_jit
+@filter_jit
 def _values(U, scene, drops, config):
     return jax.vmap(placement_objective(scene, drops, *config))(U)
 
@@ -309,7 +310,7 @@ def placement_landscape(scene: Scene, result: PlacementResult, orientations=None
     return c1, c2, np.asarray(values).reshape(C1.shape)
 
 
-@eqx.filter_jit
+@filter_jit
 def _landscape(centres, phi, drops, config):
     objective, alpha, numerics = config
 

@@ -13,6 +13,7 @@ from ._simulate import Numerics, _plate_points, _setup, drop_motion, peak_deflec
 from ._beam import mode_shapes
 from ._peaks import field_on_grid, near_mounts
 from ._plate import Plate, surface_stress
+from ._compile import filter_jit
 
 _PEAKS = {"stress": peak_stress, "strain": peak_strain, "deflection": peak_deflection}
 
@@ -65,7 +66,7 @@ def sensitivities(scene: Scene, numerics: Numerics | None = None, quantity: str 
         raise ValueError(f"quantity = {quantity!r}; valid: {', '.join(_PEAKS)}")
     peak_fn = _PEAKS[quantity]
     numerics = Numerics() if numerics is None else numerics
-    peak, grad = eqx.filter_jit(jax.value_and_grad(lambda s: peak_fn(s, numerics)))(scene)
+    peak, grad = filter_jit(jax.value_and_grad(lambda s: peak_fn(s, numerics)))(scene)
     grads = dict(scalar_fields(grad))
     peak = float(peak)
     rows = [Sensitivity(name, value, grads[name], value * grads[name] / peak if (peak and value != 0.0) else None,
@@ -89,7 +90,7 @@ def smooth_peak_stress(scene: Scene, numerics: Numerics | None = None, temperatu
     return _smooth(scene, numerics, temperature)
 
 
-@eqx.filter_jit
+@filter_jit
 def _smooth(scene, numerics, temperature):
     board = scene.board
     motion = drop_motion(scene, numerics)[0]

@@ -27,6 +27,7 @@ from ._motion import HalfSine, Impulse, PulseTrain, Record
 from ._peaks import FieldPeak, field_on_grid, find_peak, find_plate_peak, plate_starts, stop_gradient
 from ._plate import Plate, PlateModes, plate_modes, surface_strain, surface_stress
 from ._scene import Board, Scene, check_scene, require_single, scene_flags
+from ._compile import filter_jit
 
 METHODS = ("closed_form", "diffrax")
 
@@ -691,7 +692,7 @@ def _respond_plate(plate: Plate, motion, numerics: Numerics, flags, gauges=None)
     )
 
 
-@eqx.filter_jit
+@filter_jit
 def _board_response_jit(board, motion, numerics, gauges):
     return _respond(board, motion, numerics, jnp.int32(0), gauges)
 
@@ -739,7 +740,7 @@ def _simulate(scene: Scene, numerics: Numerics, gauges=None) -> Response:
     )
 
 
-_simulate_jit = eqx.filter_jit(_simulate)
+_simulate_jit = filter_jit(_simulate)
 
 
 def _raise_eagerly(scene: Scene, numerics: Numerics, flags, impacts: Impacts | None, what: str,
@@ -788,7 +789,7 @@ def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Res
 QUANTITIES = ("stress", "strain", "deflection")
 
 
-@eqx.filter_jit
+@filter_jit
 def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], grid_deflection: bool = False):
     """Peaks of the requested quantities (stress, strain, deflection) sharing one modal solution and one batched
     search; returns (values (len(quantities),), flags). `grid_deflection` takes the deflection peak from the grid
@@ -897,7 +898,7 @@ def response_fields(scene: Scene, numerics: Numerics | None = None, nx: int = 10
     return _fields(scene, response, numerics, x, nt)
 
 
-@eqx.filter_jit
+@filter_jit
 def _fields(scene, response, numerics, x, nt):
     board = scene.board
     M = numerics.computed_modes
@@ -970,7 +971,7 @@ def plate_strain_map(scene: Scene, response: Response, numerics: Numerics | None
     return _strain_map(scene, numerics, response.n_modes, t, nx, ny)
 
 
-@eqx.filter_jit
+@filter_jit
 def _strain_map(scene, numerics, used, t, nx, ny):
     plate = scene.board
     M = numerics.computed_modes

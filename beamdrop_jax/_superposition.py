@@ -40,6 +40,7 @@ from ._motion import HalfSine
 from ._plate import Plate
 from ._scene import Board, Scene, scene_flags
 from ._simulate import PLATE_MEASURES, Numerics, _plate_points, _plate_searches, _search, _setup, drop_motion
+from ._compile import filter_jit, jit
 
 _BUILD_BATCH = 16
 DURATION_NODES = 17
@@ -236,7 +237,7 @@ def _mirror_symmetric(plate: Plate) -> bool:
     return bool(np.all(gaps <= 1e-9 * float(plate.length)))
 
 
-@eqx.filter_jit
+@filter_jit
 def _build_plate(plate: Plate, duration, numerics: Numerics, n_angles: int, symmetric: bool):
     """`PlateTable` contents: the unit-jump fields on the search grid once, each direction's measures as their
     combination, then each direction's refinement; for a mirror-symmetric plate (`symmetric`) half the
@@ -283,12 +284,12 @@ def _drop_jumps(scene: Scene, law: str):
 
 # `jax.jit` rather than `eqx.filter_jit` for these two, called once per chunk: every leaf is an array (or the
 # static `axes`), and its dispatch took 76 us against 202 us on the 2-core development machine.
-@functools.partial(jax.jit, static_argnums=(1, 2))
+@functools.partial(jit, static_argnums=(1, 2))
 def _batch_jumps(samples: Scene, axes, law: str):
     return jax.vmap(lambda scene: _drop_jumps(scene, law), in_axes=(axes,))(samples)
 
 
-@functools.partial(jax.jit, static_argnums=(3,))
+@functools.partial(jit, static_argnums=(3,))
 def _batch_response(table: "SuperpositionTable", board: Board, durations, batched: bool, jumps, flags):
     flags = combine(flags, table.outside(durations))
     values = jax.vmap(table.response, in_axes=(None, 0, 0 if batched else None, 0))(board, jumps, durations, flags)
@@ -339,7 +340,7 @@ def _mirror_sources(n_angles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return searched, source, mirrored
 
 
-@eqx.filter_jit
+@filter_jit
 def _build(board: Board, durations, numerics: Numerics, n_angles: int):
     M = numerics.computed_modes
     if board.ends in SYMMETRIC_ENDS:
@@ -451,7 +452,7 @@ def _cells(board, unit, rows, x, t, rates, omega, zeta, durations):
     return jax.vmap(per_cell)(C, X, T, V, D, tau)
 
 
-@eqx.filter_jit
+@filter_jit
 def _kept_modes(scene: Scene):
     """The modes `simulate` keeps for a scene's pulse (one compiled program: op by op, a plate's eigensolve took
     0.25 s)."""

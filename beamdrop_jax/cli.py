@@ -3,8 +3,7 @@
 Every bad argument is one line on stderr and exit status 2 before any computation. `--json` prints one JSON object
 on stdout (units in the keys) instead of the table; messages about written files then go to stderr.
 Compiled programs are kept in a persistent cache (the user's cache folder; `--no-cache` or BEAMDROP_NO_CACHE=1
-turn it off, BEAMDROP_CACHE_DIR moves it); a run that must compile says so on stderr. The CLI compiles with XLA's
-classic CPU emitters (faster to compile, same run time) unless XLA_FLAGS says otherwise.
+turn it off, BEAMDROP_CACHE_DIR moves it); a run that must compile says so on stderr.
 """
 
 import argparse
@@ -508,37 +507,6 @@ def _cache_dir() -> Path:
     return Path(base) / "beamdrop_jax" / "xla"
 
 
-_FAST_COMPILE_FLAG = "--xla_cpu_use_fusion_emitters=false"
-
-
-def _jaxlib_knows(flag: str) -> bool:
-    """Whether the installed jaxlib's libraries name the XLA flag `flag` (an unknown flag in XLA_FLAGS aborts the
-    process, so a flag is only passed when it is there)."""
-    import importlib.util
-    import mmap
-
-    spec = importlib.util.find_spec("jaxlib")
-    name = flag.lstrip("-").split("=")[0].encode()
-    for folder in (spec.submodule_search_locations or []) if spec else []:
-        for lib in sorted(Path(folder).glob("*.so"), key=lambda f: -f.stat().st_size):
-            try:
-                with open(lib, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
-                    if data.find(name) >= 0:
-                        return True
-            except (OSError, ValueError):  # unreadable or empty: it names nothing
-                continue
-    return False
-
-
-def _compile_faster(environ=os.environ) -> None:
-    """XLA's classic CPU emitters compile this package's programs about 1.4x faster with the same run time
-    (`beamdrop bench --latency`, measured with and without): the CLI adds that flag to XLA_FLAGS before JAX starts,
-    unless XLA_FLAGS already sets it or jaxlib does not know it."""
-    current = environ.get("XLA_FLAGS", "")
-    if _FAST_COMPILE_FLAG.split("=")[0] not in current and _jaxlib_knows(_FAST_COMPILE_FLAG):
-        environ["XLA_FLAGS"] = f"{current} {_FAST_COMPILE_FLAG}".strip()
-
-
 def _setup_jax(args):
     """Precision, and the persistent compilation cache (the CLI's choices; the library never changes JAX's config).
     Returns the stamp file that marks these settings as compiled, or None without a cache."""
@@ -570,8 +538,6 @@ def _setup_jax(args):
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     output = _Output(args)
-    if not getattr(args, "latency", False):  # the latency bench times users' processes as they start them
-        _compile_faster()
     try:
         if _writes_files(args):
             _check_out(args)

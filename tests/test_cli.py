@@ -73,21 +73,41 @@ def test_pivot_is_a_clear_cli_error_and_clattering_montecarlo_runs(tmp_path, cap
     assert "64 random drops" in capsys.readouterr().out
 
 
-def test_cli_compiles_with_a_flag_jaxlib_knows_and_respects_the_users(monkeypatch):
-    from beamdrop_jax import cli
+def test_programs_compile_with_classic_emitters_only_where_jax_allows_and_the_user_has_not_chosen(monkeypatch):
+    """A package program called on its own compiles with XLA's classic-emitter option; traced into a user's `jit`,
+    `grad` or `vmap` (where JAX refuses options) it compiles as usual, with the same numbers; `XLA_FLAGS` that
+    set the emitters, or a jaxlib without the option, leave compilation as it is."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
 
-    env = {}
-    cli._compile_faster(env)
-    assert env == {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=false"}
-    # The flag is real: a JAX process started with it computes (an unknown flag would abort it).
-    done = subprocess.run([sys.executable, "-c", "import jax.numpy as jnp; print(float(jnp.ones(3).sum()))"],
-                          env={**os.environ, **env}, capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0 and done.stdout.strip() == "3.0", done.stderr[-500:]
-    mine = {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true --xla_dump_to=/tmp/x"}
-    cli._compile_faster(mine)
-    assert mine == {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true --xla_dump_to=/tmp/x"}
-    # A flag the installed jaxlib does not name is never passed.
-    monkeypatch.setattr(cli, "_FAST_COMPILE_FLAG", "--xla_cpu_no_such_flag_for_beamdrop=false")
-    env = {"XLA_FLAGS": "--xla_dump_to=/tmp/x"}
-    cli._compile_faster(env)
-    assert env == {"XLA_FLAGS": "--xla_dump_to=/tmp/x"}
+    from beamdrop_jax import _compile
+
+    monkeypatch.setenv("XLA_FLAGS", "")  # a user's process (the test run sets the emitters itself)
+    _compile.compiler_options.cache_clear()
+    try:
+        assert _compile.compiler_options() == {"xla_cpu_use_fusion_emitters": False}
+        f = _compile.filter_jit(lambda x: jnp.sin(2 * x) ** 2)
+        plain_calls = []
+        plain = f._plain
+        f._plain = lambda *a: plain_calls.append(1) or plain(*a)
+        x = jnp.asarray(0.3)
+        value, slope = np.sin(0.6) ** 2, 4 * np.sin(0.6) * np.cos(0.6)
+        np.testing.assert_allclose(float(f(x)), value, rtol=1e-14)
+        assert plain_calls == [] and f._fast is not plain  # on its own: the program with the option
+        np.testing.assert_allclose(float(jax.jit(f)(x)), value, rtol=1e-14)
+        np.testing.assert_allclose(float(jax.grad(f)(x)), slope, rtol=1e-14)
+        np.testing.assert_allclose(float(jax.jit(jax.grad(f))(x)), slope, rtol=1e-14)
+        np.testing.assert_allclose(np.asarray(jax.vmap(f)(jnp.stack([x, x]))), [value, value], rtol=1e-14)
+        np.testing.assert_allclose(float(jax.jit(lambda: f(x))()), value, rtol=1e-14)  # no traced argument
+        assert len(plain_calls) == 5
+        monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
+        _compile.compiler_options.cache_clear()
+        assert _compile.compiler_options() is None
+        monkeypatch.setenv("XLA_FLAGS", "")
+        monkeypatch.setattr(_compile, "_CLASSIC_EMITTERS", "xla_cpu_no_such_option_for_beamdrop")
+        _compile.compiler_options.cache_clear()
+        assert _compile.compiler_options() is None
+    finally:
+        monkeypatch.undo()
+        _compile.compiler_options.cache_clear()

@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from jax.test_util import check_grads
 
 import beamdrop_jax as bd
+import beamdrop_jax._impact  # noqa: F401 - `bd._impact` below, before any call has loaded it
 from references import darboux_keller, random_contact
 
 B_PUBLIC = np.array([[2.5, -1.5], [-1.5, 2.5]])
