@@ -134,6 +134,21 @@ def test_check_grads_reverse_mode(scenes):
         check_grads(f, (jnp.zeros(n),), order=1, modes=["rev"], eps=1e-6, atol=1e-5 * value, rtol=1e-5)
 
 
+def test_eager_reverse_mode_and_forward_mode_equal_central_differences():
+    # An eager jax.grad and jax.jvp reach the peak's derivative rule by other routes than the compiled gradient.
+    scene = bd.Scene.default().replace(**{"drop.spin": 5.0, "board.damping_ratio": 0.02, "drop.horizontal_speed": 0.5})
+    _, _, fd = dimensionless(scene)
+    scales = _scales(scene)
+    f = lambda z: bd.peak_stress(_perturbed(z, scene, scales), NUMERICS)  # noqa: E731
+    z = jnp.zeros(fd.shape[0])
+    scale = float(jnp.abs(fd).max())
+    np.testing.assert_allclose(jax.grad(f)(z), fd, atol=1e-5 * scale)
+    direction = jnp.asarray(np.random.default_rng(3).normal(size=fd.shape[0]))
+    value, slope = jax.jvp(f, (z,), (direction,))
+    assert float(value) == pytest.approx(float(bd.peak_stress(scene, NUMERICS)), rel=1e-12)
+    assert float(slope) == pytest.approx(float(fd @ direction), abs=1e-5 * scale * float(jnp.abs(direction).sum()))
+
+
 @pytest.mark.parametrize("peak", [bd.peak_strain, bd.peak_deflection])
 def test_strain_and_deflection_gradients(peak):
     scene = bd.Scene.default().replace(**{"drop.spin": 5.0, "board.damping_ratio": 0.02})
