@@ -7,6 +7,7 @@ turn it off, BEAMDROP_CACHE_DIR moves it); a run that must compile says so on st
 """
 
 import argparse
+import contextlib
 import hashlib
 import json
 import math
@@ -542,10 +543,14 @@ def main(argv=None) -> int:
         if _writes_files(args):
             _check_out(args)
         stamp = _setup_jax(args)
-        import matplotlib
+        if "matplotlib" in sys.modules:  # figures go to files only
+            sys.modules["matplotlib"].use("Agg")
+        else:  # matplotlib is imported when a figure is drawn
+            os.environ["MPLBACKEND"] = "Agg"
+        from ._compile import keep_programs
 
-        matplotlib.use("Agg")
-        args.func(args, output)
+        with keep_programs(_cache_dir() / "programs") if stamp is not None else contextlib.nullcontext():
+            args.func(args, output)
     except (ValueError, FileNotFoundError) as err:
         print(f"beamdrop {args.command}: error: {err}", file=sys.stderr)
         return 2
