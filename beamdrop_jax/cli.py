@@ -8,6 +8,7 @@ turn it off, BEAMDROP_CACHE_DIR moves it); a run that must compile says so on st
 
 import argparse
 import contextlib
+import difflib
 import hashlib
 import json
 import math
@@ -498,7 +499,20 @@ def build_parser() -> argparse.ArgumentParser:
                        help="import, first drop and first gradient in fresh processes against a bare JAX process")
     p.add_argument("--repeats", type=_int_at_least(1), default=5, help="repeats for --latency (default 5)")
     p.set_defaults(func=cmd_bench)
+    parser.commands = sub.choices
     return parser
+
+
+def _parse(argv) -> argparse.Namespace:
+    """The arguments; one a command does not know is reported by that command, with the nearest option."""
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        command = parser.commands[args.command]
+        options = [o for action in command._actions for o in action.option_strings]
+        near = difflib.get_close_matches(extra[0].split("=")[0], options, n=1)
+        command.error(f"unrecognized arguments: {' '.join(extra)}" + (f"; did you mean {near[0]}?" if near else ""))
+    return args
 
 
 def _cache_dir() -> Path:
@@ -536,20 +550,35 @@ def _setup_jax(args):
     return stamp
 
 
+@contextlib.contextmanager
+def _figures_to_files():
+    """Figures are drawn off-screen (Agg); matplotlib is imported only where a figure is drawn."""
+    if "matplotlib" in sys.modules:
+        sys.modules["matplotlib"].use("Agg")
+        yield
+        return
+    before = os.environ.get("MPLBACKEND")
+    os.environ["MPLBACKEND"] = "Agg"
+    try:
+        yield
+    finally:  # the process's environment as it was (a caller's later subprocesses inherit it)
+        if before is None:
+            del os.environ["MPLBACKEND"]
+        else:
+            os.environ["MPLBACKEND"] = before
+
+
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    args = _parse(argv)
     output = _Output(args)
     try:
         if _writes_files(args):
             _check_out(args)
         stamp = _setup_jax(args)
-        if "matplotlib" in sys.modules:  # figures go to files only
-            sys.modules["matplotlib"].use("Agg")
-        else:  # matplotlib is imported when a figure is drawn
-            os.environ["MPLBACKEND"] = "Agg"
         from ._compile import keep_programs
 
-        with keep_programs(_cache_dir() / "programs") if stamp is not None else contextlib.nullcontext():
+        with (keep_programs(_cache_dir() / "programs") if stamp is not None else contextlib.nullcontext(),
+              _figures_to_files()):
             args.func(args, output)
     except (ValueError, FileNotFoundError) as err:
         print(f"beamdrop {args.command}: error: {err}", file=sys.stderr)
