@@ -5,9 +5,9 @@ user's JAX is untouched, the option follows the programs through `grad` and `vma
 them compiles with the user's options. An `XLA_FLAGS` that sets the emitters wins; a jaxlib that does not know
 the option compiles as usual.
 
-`keep_programs(folder)` (the CLI's cache) also keeps each program as traced (`jax.export`), so a later process with
-the same package, libraries, arguments' structure and shapes skips tracing and lowering (0.5 s of a 1.4 s
-`beamdrop drop`) and finds the compiled program in JAX's compilation cache."""
+`keep_programs(folder)` (the CLI's cache) keeps each compiled program as a serialised executable, so a later process
+with the same package, libraries, machine, arguments' structure and shapes loads it without tracing, lowering or
+compiling (0.6 s of a 1.4 s `beamdrop drop`)."""
 
 import contextlib
 import functools
@@ -16,10 +16,12 @@ import importlib.metadata
 import inspect
 import os
 import pickle
+import platform
 from pathlib import Path
 
 import equinox as eqx
 import jax
+from jax.experimental import serialize_executable
 
 _CLASSIC_EMITTERS = "xla_cpu_use_fusion_emitters"
 
@@ -38,26 +40,27 @@ def compiler_options() -> dict | None:
     return options
 
 
-_kept: list[Path] = []  # the folder of `keep_programs`, while one is active
+_folders: list[Path] = []  # the folder of `keep_programs`, while one is active
 
 
 @contextlib.contextmanager
 def keep_programs(folder):
-    """Within the block, the package's programs called at the top level are kept in `folder` as exported (traced
-    and lowered) programs and taken from there when a call matches one: same function, package source, library
-    versions, precision, static arguments, and arrays' shapes and dtypes. Only module-level `filter_jit`
-    functions whose static arguments print without object addresses are kept (a closure's name does not say what
-    it captured)."""
-    _kept.append(Path(folder))
+    """Within the block, the package's programs called at the top level are kept in `folder` as compiled
+    executables and loaded from there when a call matches one: same function, package source, library versions,
+    machine, precision, compile options, static arguments, and arrays' shapes and dtypes. Only module-level
+    `filter_jit` functions whose static arguments print without object addresses are kept (a closure's name does
+    not say what it captured)."""
+    _folders.append(Path(folder))
     try:
         yield
     finally:
-        _kept.pop()
+        _folders.pop()
 
 
 @functools.cache
 def _environment() -> str:
-    """What a kept program depends on besides its arguments: this package's source and the libraries it traces."""
+    """What a kept program depends on besides its arguments: this package's source, the libraries it traces and
+    compiles with, and the processor it was compiled for (an executable uses the host's instruction set)."""
     digest = hashlib.sha256()
     for path in sorted(Path(__file__).parent.glob("*.py")):
         digest.update(path.name.encode() + path.read_bytes())
@@ -67,7 +70,29 @@ def _environment() -> str:
             versions.append(f"{name}={importlib.metadata.version(name)}")
         except importlib.metadata.PackageNotFoundError:
             versions.append(f"{name}=none")
-    return digest.hexdigest() + ";" + ";".join(versions) + ";" + jax.default_backend()
+    try:
+        cpu = next((line for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("flags")), "")
+    except OSError:
+        cpu = platform.processor()
+    machine = hashlib.sha256(f"{platform.machine()};{cpu}".encode()).hexdigest()
+    return ";".join([digest.hexdigest(), *versions, jax.default_backend(), machine])
+
+
+@functools.cache
+def _hit_counter() -> list[int]:
+    hits = [0]
+
+    def count(event: str, **kwargs):
+        if event == "/jax/compilation_cache/cache_hits":
+            hits[0] += 1
+
+    jax.monitoring.register_event_listener(count)
+    return hits
+
+
+def _cache_hits() -> int:
+    """Programs loaded from JAX's persistent compilation cache in this process so far."""
+    return _hit_counter()[0]
 
 
 class _Slot(int):
@@ -83,7 +108,7 @@ class _Compiled:
         self._make, self._fun, self._jit_kwargs = make, fun, jit_kwargs
         self._plain = make(fun, **jit_kwargs)
         self._fast = None  # made on the first call, when JAX is running anyway
-        self._exported = {}  # key -> (callable on the array leaves, output template)
+        self._loaded = {}  # key -> (executable on the array leaves, output template)
         # `jax.jit` traces Python numbers, which a kept program would fix as constants: Equinox's programs only.
         self._keepable = make is eqx.filter_jit and inspect.isfunction(fun) and "<" not in fun.__qualname__
         self._name = f"{getattr(fun, '__module__', '')}.{getattr(fun, '__qualname__', '')}"
@@ -97,8 +122,8 @@ class _Compiled:
                 self._fast = self._plain if options is None else self._make(
                     self._fun, compiler_options=options, **self._jit_kwargs)
             try:
-                if _kept and self._keepable:
-                    out = self._call_kept(_kept[-1], args, kwargs)
+                if _folders and self._keepable:
+                    out = self._call_kept(_folders[-1], args, kwargs)
                     if out is not None:
                         return out
                 return self._fast(*args, **kwargs)
@@ -108,7 +133,7 @@ class _Compiled:
         return self._plain(*args, **kwargs)
 
     def _call_kept(self, folder: Path, args, kwargs):
-        """The call through a kept program (loaded, or exported and kept now); None where it cannot be kept."""
+        """The call through a kept program (loaded, or compiled and kept now); None where it cannot be kept."""
         arrays, static = eqx.partition((args, kwargs), eqx.is_array)
         leaves, treedef = jax.tree_util.tree_flatten(arrays)
         shapes = [(x.shape, str(x.dtype), bool(getattr(x, "weak_type", False))) for x in leaves]
@@ -120,32 +145,33 @@ class _Compiled:
         if " at 0x" in text:
             return None
         key = hashlib.sha256(text.encode()).hexdigest()[:40]
-        if key not in self._exported:
-            path = folder / f"{self._name.rsplit('.', 1)[-1]}-{key}.jaxexport"
+        if key not in self._loaded:
+            path = folder / f"{self._name.rsplit('.', 1)[-1]}-{key}.xla"
             try:
-                blob, template = pickle.loads(path.read_bytes())
-                exported = jax.export.deserialize(bytearray(blob))
-            except Exception:  # noqa: BLE001 - absent, partly written or unreadable: export it again
-                exported, template = self._export(treedef, static, leaves)
-                if exported is None:
+                payload, in_tree, out_tree, template = pickle.loads(path.read_bytes())
+                compiled = serialize_executable.deserialize_and_load(payload, in_tree, out_tree)
+            except Exception:  # noqa: BLE001 - absent, partly written or unreadable: compile it again
+                compiled, template, fresh = self._compile_kept(treedef, static, leaves)
+                if compiled is None:
                     return None
-                try:
-                    folder.mkdir(parents=True, exist_ok=True)
-                    scratch = path.with_suffix(f".{os.getpid()}")
-                    scratch.write_bytes(pickle.dumps((exported.serialize(), template)))
-                    scratch.replace(path)  # whole files only: another process may be reading
-                except Exception:  # noqa: BLE001 - an output that does not pickle, a full disk: not kept
-                    pass
-            options = compiler_options()
-            self._exported[key] = (jax.jit(exported.call, **({} if options is None else
-                                                              {"compiler_options": options})), template)
-        call, template = self._exported[key]
+                if fresh:
+                    try:
+                        folder.mkdir(parents=True, exist_ok=True)
+                        scratch = path.with_suffix(f".{os.getpid()}")
+                        scratch.write_bytes(pickle.dumps((*serialize_executable.serialize(compiled), template)))
+                        scratch.replace(path)  # whole files only: another process may be reading
+                    except Exception:  # noqa: BLE001 - an output that does not pickle, a full disk: not kept
+                        pass
+            self._loaded[key] = (compiled, template)
+        call, template = self._loaded[key]
         outputs = call(*leaves)
         return jax.tree_util.tree_map(lambda v: outputs[v] if isinstance(v, _Slot) else v, template)
 
-    def _export(self, treedef, static, leaves):
-        """The program exported over the arguments' array leaves, and its output template (the output with each
-        array replaced by its `_Slot`); (None, None) where JAX cannot export it."""
+    def _compile_kept(self, treedef, static, leaves):
+        """The program compiled over the arguments' array leaves, its output template (the output with each array
+        replaced by its `_Slot`), and whether it was compiled here: an executable loaded from JAX's compilation
+        cache does not serialise whole again (its calls fail with "Function ... not found"), so only programs
+        compiled here are kept. (None, None, False) where it does not compile so (the usual call says why)."""
         box = []
 
         def on_arrays(*arrays):
@@ -156,11 +182,14 @@ class _Compiled:
                 out_tree, [_Slot(next(slots)) if eqx.is_array(v) else v for v in out_leaves]))
             return [v for v in out_leaves if eqx.is_array(v)]
 
+        options = compiler_options()
+        hits = _cache_hits()
         try:
-            exported = jax.export.export(jax.jit(on_arrays))(*leaves)
-        except Exception:  # noqa: BLE001 - what JAX cannot export (host callbacks, ...) runs as usual
-            return None, None
-        return exported, box[0]
+            compiled = jax.jit(on_arrays, **({} if options is None else {"compiler_options": options})).lower(
+                *leaves).compile()
+        except Exception:  # noqa: BLE001 - the usual call raises it again, from the package's own program
+            return None, None, False
+        return compiled, box[0], _cache_hits() == hits
 
 
 def filter_jit(fun=None, **jit_kwargs):

@@ -114,24 +114,28 @@ def test_programs_compile_with_classic_emitters_only_where_jax_allows_and_the_us
 
 
 def test_kept_programs_skip_tracing_and_give_the_same_numbers(tmp_path, monkeypatch):
-    """`keep_programs` (the CLI's cache): a call traces and keeps its program once; a later process (here: an empty
-    in-process table and a function that must not be traced) loads it and gets the numbers of the usual path. Other
-    shapes or static arguments, another package source, and closures are not matched."""
+    """`keep_programs` (the CLI's cache): a call compiles and keeps its program once; a later process (here: an
+    empty in-process table and a function that must not be traced) loads it and gets the numbers of the usual path.
+    Other static arguments or another package source are new entries; closures are not kept; a program that JAX's
+    own compilation cache supplied is used but not kept (it would not serialise whole)."""
+    import random
+
     import jax.numpy as jnp
     import numpy as np
 
     import beamdrop_jax as bd
     from beamdrop_jax import _compile, _simulate
 
-    scene, numerics = bd.Scene.default(), bd.Numerics(n_modes=5)
+    # A tolerance of this run only: a program JAX's compilation cache (shared by the test runs) has never seen.
+    scene, numerics = bd.Scene.default(), bd.Numerics(n_modes=5, convergence_rtol=1e-3 * (1 + random.random()))
     usual = bd.simulate(scene, numerics)
     program = _simulate._simulate_jit
-    with _compile.keep_programs(tmp_path):
+    folder = tmp_path / "programs"
+    with _compile.keep_programs(folder):
         first = bd.simulate(scene, numerics)
-        kept = sorted(p.name for p in tmp_path.iterdir())
+        kept = sorted(p.name for p in folder.iterdir())
         assert len(kept) == 1 and kept[0].startswith("_simulate-")
-        program._exported.clear()  # a new process: only the folder remains
-
+        program._loaded.clear()  # a new process: only the folder remains
         traced = []
 
         def untraceable(*args, **kwargs):
@@ -140,22 +144,27 @@ def test_kept_programs_skip_tracing_and_give_the_same_numbers(tmp_path, monkeypa
 
         monkeypatch.setattr(program, "_fun", untraceable)
         again = bd.simulate(scene, numerics)
-        assert traced == [] and len(program._exported) == 1  # loaded from the folder
+        assert traced == [] and len(program._loaded) == 1  # loaded from the folder
         for res in (first, again):
             for get in (lambda r: r.peak.stress, lambda r: r.peak.x, lambda r: r.peak.t, lambda r: r.frequencies,
                         lambda r: r.support_jumps, lambda r: r.error_estimate, lambda r: r.impulse.P):
                 np.testing.assert_allclose(np.asarray(get(res)), np.asarray(get(usual)), rtol=1e-13, atol=0)
             assert int(res.flags) == 0 and res.summary()["contact_mode"] == usual.summary()["contact_mode"]
         monkeypatch.undo()
-        program._exported.clear()
-        bd.simulate(scene, bd.Numerics(n_modes=6))  # static argument
-        assert len(list(tmp_path.iterdir())) == 2
+        program._loaded.clear()
+        bd.simulate(scene, bd.Numerics(n_modes=5, convergence_rtol=2e-3 * (1 + random.random())))  # static argument
+        assert len(list(folder.iterdir())) == 2
         bd.simulate(scene, numerics, gauges=None)  # the same call
-        assert len(list(tmp_path.iterdir())) == 2
+        assert len(list(folder.iterdir())) == 2
         monkeypatch.setattr(_compile, "_environment", lambda: "another package source")
-        bd.simulate(scene, numerics)
+        bd.simulate(scene, numerics)  # compiled before, so JAX's compilation cache supplies it: used, not kept
         monkeypatch.undo()
-        assert len(list(tmp_path.iterdir())) == 3
+        assert len(program._loaded) == 3 and len(list(folder.iterdir())) == 2
         f = _compile.filter_jit(lambda x: 2 * x)  # a closure: its name does not say what it captured
         assert float(f(jnp.asarray(1.5))) == 3.0
-        assert len(list(tmp_path.iterdir())) == 3
+        assert len(list(folder.iterdir())) == 2
+    program._loaded.clear()
+    with _compile.keep_programs(tmp_path / "other"):  # in JAX's compilation cache since the first call above
+        res = bd.simulate(scene, numerics)
+        np.testing.assert_allclose(float(res.peak.stress), float(usual.peak.stress), rtol=1e-13)
+        assert not (tmp_path / "other").exists()
