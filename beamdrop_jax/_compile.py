@@ -7,7 +7,7 @@ the option compiles as usual.
 
 `keep_programs(folder)` (the CLI's cache) keeps each compiled program as a serialised executable, so a later process
 with the same package, libraries, machine, arguments' structure and shapes loads it without tracing, lowering or
-compiling (0.6 s of a 1.4 s `beamdrop drop`)."""
+compiling (a warm `beamdrop drop --no-plots` 1.4 -> 0.85 s)."""
 
 import contextlib
 import functools

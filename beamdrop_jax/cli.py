@@ -2,8 +2,9 @@
 
 Every bad argument is one line on stderr and exit status 2 before any computation. `--json` prints one JSON object
 on stdout (units in the keys) instead of the table; messages about written files then go to stderr.
-Compiled programs are kept in a persistent cache (the user's cache folder; `--no-cache` or BEAMDROP_NO_CACHE=1
-turn it off, BEAMDROP_CACHE_DIR moves it); a run that must compile says so on stderr.
+Compiled programs are kept in a persistent cache (the user's cache folder: JAX's compilation cache, and the
+package's own programs as executables under `programs/`, which later runs load without tracing them; `--no-cache`
+or BEAMDROP_NO_CACHE=1 turn it off, BEAMDROP_CACHE_DIR moves it); a run that must compile says so on stderr.
 """
 
 import argparse
