@@ -21,6 +21,7 @@ from pathlib import Path
 
 import equinox as eqx
 import jax
+import numpy as np
 from jax.experimental import serialize_executable
 
 _CLASSIC_EMITTERS = "xla_cpu_use_fusion_emitters"
@@ -151,7 +152,7 @@ class _Compiled:
                 payload, in_tree, out_tree, template = pickle.loads(path.read_bytes())
                 compiled = serialize_executable.deserialize_and_load(payload, in_tree, out_tree)
             except Exception:  # noqa: BLE001 - absent, partly written or unreadable: compile it again
-                compiled, template, fresh = self._compile_kept(treedef, static, leaves)
+                compiled, template, fresh = self._compile_kept(treedef, static, leaves, key)
                 if compiled is None:
                     return None
                 if fresh:
@@ -167,11 +168,13 @@ class _Compiled:
         outputs = call(*leaves)
         return jax.tree_util.tree_map(lambda v: outputs[v] if isinstance(v, _Slot) else v, template)
 
-    def _compile_kept(self, treedef, static, leaves):
+    def _compile_kept(self, treedef, static, leaves, key: str):
         """The program compiled over the arguments' array leaves, its output template (the output with each array
         replaced by its `_Slot`), and whether it was compiled here: an executable loaded from JAX's compilation
         cache does not serialise whole again (its calls fail with "Function ... not found"), so only programs
-        compiled here are kept. (None, None, False) where it does not compile so (the usual call says why)."""
+        compiled here are kept; the program also returns its key, so that JAX's cache holds it only where it was
+        compiled here (a new package source with the same program is compiled and kept anew). (None, None,
+        False) where it does not compile so (the usual call says why)."""
         box = []
 
         def on_arrays(*arrays):
@@ -180,7 +183,7 @@ class _Compiled:
             slots = iter(range(len(out_leaves)))
             box.append(jax.tree_util.tree_unflatten(
                 out_tree, [_Slot(next(slots)) if eqx.is_array(v) else v for v in out_leaves]))
-            return [v for v in out_leaves if eqx.is_array(v)]
+            return [v for v in out_leaves if eqx.is_array(v)] + [np.uint32(int(key[:8], 16))]
 
         options = compiler_options()
         hits = _cache_hits()
