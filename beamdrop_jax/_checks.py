@@ -141,7 +141,7 @@ def as_float(value, name: str, valid="", dtype=None):
     if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
         kind = "bool" if arr.dtype == bool else str(arr.dtype)
         raise ValueError(f"{name} = {value!r} holds {kind} values, not real numbers{where}")
-    return jnp.asarray(value, dtype=dtype or float_dtype())
+    return jax.device_put(arr.astype(dtype or float_dtype()))  # converted on the host: no program to compile
 
 
 def as_int(value, name: str, lo: int = 1, hi: int | None = None) -> int:

@@ -128,7 +128,7 @@ def _section(section: str, table, source: str, hint: str | None = None):
             raise ValueError(f"{shown} = {value!r}: must be a single number; valid: {valid}")
         number = as_float(value, shown, valid)
         valid.require(number, shown)
-        kwargs[name] = number * DEG if name != key else number
+        kwargs[name] = as_float(np.asarray(number) * DEG, shown) if name != key else number
     _require_all(where, [repr(k) for k in keys
                          if k not in table and (section, k.removesuffix("_deg")) not in OPTIONAL_KEYS], "key", hint)
     return _build(where, cls, kwargs)

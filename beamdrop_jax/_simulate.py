@@ -182,37 +182,38 @@ class Response(eqx.Module):
 
         if jnp.ndim(self.peak.stress) or not is_concrete(self):
             raise ValueError("Response.summary() needs one concrete response (index a batched one first)")
-        p = self.peak
+        r = jax.device_get(self)  # NumPy from here: arithmetic on the host, no small programs to compile
+        p = r.peak
         out = {}
-        if self.impulse is not None:
-            flat = self.housing is not None and bool(self.housing.flat)
-            out["impulse_Ns"] = self.impulse.P
-            out["contact_mode"] = "flat landing (translation)" if flat else ImpactMode(int(self.impulse.mode)).label
-        if self.impacts is not None and int(self.impacts.count) > 1:
-            out["impacts"] = int(self.impacts.count)
+        if r.impulse is not None:
+            flat = r.housing is not None and bool(r.housing.flat)
+            out["impulse_Ns"] = r.impulse.P
+            out["contact_mode"] = "flat landing (translation)" if flat else ImpactMode(int(r.impulse.mode)).label
+        if r.impacts is not None and int(r.impacts.count) > 1:
+            out["impacts"] = int(r.impacts.count)
         out |= {
-            "support_jumps_m_per_s": self.support_jumps,
-            "frequencies_Hz": self.frequencies[:4],
-            "n_modes": self.n_modes,
-            "check_modes": self.check_modes,
+            "support_jumps_m_per_s": r.support_jumps,
+            "frequencies_Hz": r.frequencies[:4],
+            "n_modes": r.n_modes,
+            "check_modes": r.check_modes,
             "peak_stress_MPa": p.stress / 1e6,
             "peak_strain_microstrain": p.strain * 1e6,
             **({"peak_membrane_stress_MPa": p.membrane_stress / 1e6} if float(p.membrane_stress) else {}),
             "peak_stress_x_mm": p.x * 1e3,
-            **({"peak_stress_y_mm": p.y * 1e3} if self.is_plate else {}),
+            **({"peak_stress_y_mm": p.y * 1e3} if r.is_plate else {}),
             "peak_stress_t_ms": p.t * 1e3,
             "peak_deflection_mm": p.deflection * 1e3,
             "peak_deflection_x_mm": p.deflection_x * 1e3,
-            **({"peak_deflection_y_mm": p.deflection_y * 1e3} if self.is_plate else {}),
+            **({"peak_deflection_y_mm": p.deflection_y * 1e3} if r.is_plate else {}),
             "peak_deflection_t_ms": p.deflection_t * 1e3,
-            "converged": self.converged,
-            "mode_check_relative_change": self.error_estimate,
-            "window_ms": self.window * 1e3,
-            "flags": Flag.describe(self.flags),
+            "converged": r.converged,
+            "mode_check_relative_change": r.error_estimate,
+            "window_ms": r.window * 1e3,
+            "flags": Flag.describe(r.flags),
         }
-        if self.gauges is not None:
-            out["gauge_peak_strain_microstrain"] = self.gauges.peak_strain * 1e6
-            out["gauge_peak_time_ms"] = self.gauges.peak_time * 1e3
+        if r.gauges is not None:
+            out["gauge_peak_strain_microstrain"] = r.gauges.peak_strain * 1e6
+            out["gauge_peak_time_ms"] = r.gauges.peak_time * 1e3
         return plain(out)
 
 
