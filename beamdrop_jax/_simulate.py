@@ -714,7 +714,7 @@ def board_response(board: Board | Plate, motion, numerics: Numerics | None = Non
     if isinstance(motion, Record) and numerics.method != "diffrax":
         raise ValueError('a Record support motion needs Numerics(method="diffrax") (it has no closed form)')
     response = _board_response_jit(board, motion, numerics, _gauge_points(gauges))
-    if is_concrete(board, motion) and int(response.flags):
+    if is_concrete(board, motion, response.flags) and int(response.flags):
         board.__check_init__()
         _raise_if_window(board, motion, numerics, response.flags, "board_response", with_check=True)
         raise_if_flagged(response.flags & ~Flag.SOLVER_FAILED, "board_response")
@@ -784,7 +784,7 @@ def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Res
     numerics = Numerics() if numerics is None else numerics
     require_single(scene, "simulate")
     response = _simulate_jit(scene, numerics, _gauge_points(gauges))
-    if is_concrete(scene) and int(response.flags):
+    if is_concrete(scene, response.flags) and int(response.flags):
         _raise_eagerly(scene, numerics, response.flags, response.impacts, "simulate")
     return response
 
@@ -872,7 +872,7 @@ def _peak(scene: Scene, numerics: Numerics | None, quantity: str):
     numerics = Numerics() if numerics is None else numerics
     require_single(scene, f"peak_{quantity}")
     value, flags = _scene_peak(scene, numerics, quantity)
-    if is_concrete(scene) and int(flags):
+    if is_concrete(scene, flags) and int(flags):
         clatter = int(flags) & (Flag.PIVOTING_CONTACT | Flag.SOLVER_FAILED) and numerics.max_impacts > 1
         impacts = drop_motion(scene, numerics)[1] if clatter else None
         _raise_eagerly(scene, numerics, flags, impacts, f"peak_{quantity}", with_check=False)

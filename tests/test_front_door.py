@@ -359,3 +359,17 @@ def test_scene_help_names_every_embedded_scene(capsys):
         main(["drop", "--help"])
     out = " ".join(capsys.readouterr().out.split())
     assert len(bd.embedded_scenes()) >= 4 and all(name in out for name in bd.embedded_scenes())
+
+
+def test_a_concrete_scene_closed_over_by_a_users_jit_gives_the_eager_numbers():
+    # The eager checks read the flags only where they are concrete: inside the user's program they are traced.
+    import jax
+
+    scene = bd.Scene.default()
+    pulse = bd.HalfSine(3.0, 1.0, 5e-4)
+    cases = [(lambda: bd.peak_stress(scene), lambda: bd.peak_stress(scene)),
+             (lambda: bd.simulate(scene).peak.stress, lambda: bd.simulate(scene).peak.stress),
+             (lambda: bd.board_response(scene.board, pulse).peak.stress,
+              lambda: bd.board_response(scene.board, pulse).peak.stress)]
+    for inside, eager in cases:
+        assert float(jax.jit(inside)()) == pytest.approx(float(eager()), rel=1e-12)
