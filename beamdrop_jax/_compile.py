@@ -2,8 +2,8 @@
 emitters (`xla_cpu_use_fusion_emitters` off), which compile this package's programs 1.4-1.8x faster at the same
 run time (`beamdrop bench --latency`). A compile option of each program, not a global setting: the rest of the
 user's JAX is untouched, the option follows the programs through `grad` and `vmap`, and a user's own `jit` around
-them compiles with the user's options. An `XLA_FLAGS` that sets the emitters wins; a jaxlib that does not know
-the option compiles as usual.
+them compiles with the user's options. Also: YNNPACK fusions for matrix products only (`_OPTIONS`). An `XLA_FLAGS`
+that sets an option wins; a jaxlib that does not know an option compiles as usual.
 
 `keep_programs(folder)` (the CLI's cache) keeps each compiled program as a serialised executable, so a later process
 with the same package, libraries, machine, arguments' structure and shapes loads it without tracing, lowering or
@@ -25,20 +25,32 @@ import numpy as np
 from jax.experimental import serialize_executable
 
 _CLASSIC_EMITTERS = "xla_cpu_use_fusion_emitters"
+_LIBRARY_FUSIONS = "xla_cpu_experimental_ynn_fusion_type"
+_OPTIONS = {
+    _CLASSIC_EMITTERS: False,
+    # Matrix products only: YNNPACK's reductions (by default also on) took 60 % of a clattering Monte-Carlo drop
+    # (maxima over the board of the search grids; 54 -> 35 us per drop with products only).
+    _LIBRARY_FUSIONS: "LIBRARY_FUSION_TYPE_DOT",
+}
 
 
 @functools.cache
 def compiler_options() -> dict | None:
-    """`{"xla_cpu_use_fusion_emitters": False}`, or None where `XLA_FLAGS` sets it or jaxlib does not know it
-    (checked once, by compiling a one-operation program with it)."""
-    if _CLASSIC_EMITTERS in os.environ.get("XLA_FLAGS", ""):
-        return None
-    options = {_CLASSIC_EMITTERS: False}
-    try:
-        jax.jit(lambda x: x + 1, compiler_options=options).lower(0).compile()
-    except jax.errors.JaxRuntimeError:  # "No such compile option"
-        return None
-    return options
+    """The package's compile options (`_OPTIONS`), less those that `XLA_FLAGS` sets or that jaxlib does not know
+    (checked once, by compiling a one-operation program with them, then with each where that fails); None if none
+    is left."""
+
+    def known(options):
+        try:
+            jax.jit(lambda x: x + 1, compiler_options=options).lower(0).compile()
+        except jax.errors.JaxRuntimeError:  # "No such compile option"
+            return False
+        return True
+
+    options = {k: v for k, v in _OPTIONS.items() if k not in os.environ.get("XLA_FLAGS", "")}
+    if options and not known(options):
+        options = {k: v for k, v in options.items() if known({k: v})}
+    return options or None
 
 
 _folders: list[Path] = []  # the folder of `keep_programs`, while one is active

@@ -72,7 +72,7 @@ def find_peak(
     curvature=False,
     candidates: int = 4,
     newton_steps: int = 6,
-    refine: bool = True,
+    refine: bool | tuple[bool, ...] = True,
     membrane: Float[Array, "r n"] | None = None,
     windows: int = 1,
 ) -> FieldPeak:
@@ -87,11 +87,14 @@ def find_peak(
     interpolation through the neighbouring grid values are refined: peaks of nearly equal height in different
     windows are ranked by the interpolated value, not by the coarse grid's.
 
-    The rows' candidates are refined together in one loop over Newton steps (the loop is never itself
-    vmapped: batching a loop re-traces its body, which made most of the tracing time)."""
-    n = coeffs.shape[-1]
+    `refine` (a bool, or one per row): refine the grid's peaks, or report the grid's maximum; rows of both kinds
+    share one evaluation of the grid (one matrix product), and then the grid's maxima carry no gradient. The rows' candidates are refined together in one loop
+    over Newton steps (the loop is never itself vmapped: batching a loop re-traces its body, which made most of the
+    tracing time)."""
+    n, rows = coeffs.shape[-1], coeffs.shape[0]
     curvature = jnp.broadcast_to(jnp.asarray(curvature), coeffs.shape[:1])
-    if refine:
+    refined = tuple(refine) if isinstance(refine, tuple) else (bool(refine),) * rows
+    if any(refined):
         # The grid only picks the starts: no gradient flows through it, so none is built.
         coeffs_g, Q_g, board_g, x_g, t_g, membrane_g = stop_gradient((coeffs, Q, board, x, t, membrane))
     else:
@@ -106,15 +109,24 @@ def find_peak(
         # A plain max over x, then arg-maxima only where needed: a full 2-D argmax is a slow variadic reduction.
         return F, A, A.max(axis=0)
 
-    if not refine:
-        def coarse(c, m, cv):
-            # The value by a plain max (where it lies only if asked for: XLA drops the arg-maxima when unused).
-            _, A, envelope = on_grid(c, m, cv)
-            value, j = envelope.max(), envelope.argmax()
-            err = (value - jnp.max(envelope[::2])) / jnp.maximum(value, jnp.finfo(A.dtype).tiny)
-            return FieldPeak(value, x_g[A[:, j].argmax()], t_g[j], err)
+    # Every row's grid in one batched product (the rows share the modal factors).
+    grids = jax.vmap(on_grid)(coeffs_g, membrane_g, curvature)
 
-        return jax.vmap(coarse)(coeffs_g, membrane_g, curvature)
+    def rows_where(tree, which):
+        at = np.asarray([i for i, r in enumerate(refined) if r == which])
+        return jax.tree_util.tree_map(lambda v: v[at], tree)
+
+    def coarse(F, A, envelope):
+        # The value by a plain max (where it lies only if asked for: XLA drops the arg-maxima when unused).
+        value, j = envelope.max(), envelope.argmax()
+        err = (value - jnp.max(envelope[::2])) / jnp.maximum(value, jnp.finfo(A.dtype).tiny)
+        return FieldPeak(value, x_g[A[:, j].argmax()], t_g[j], err)
+
+    if not any(refined):
+        return jax.vmap(coarse)(*grids)
+    coarse_peaks = None if all(refined) else jax.vmap(coarse)(*rows_where(grids, False))
+    if coarse_peaks is not None:  # from here on, the refined rows alone
+        coeffs, membrane, curvature, grids = rows_where((coeffs, membrane, curvature, grids), True)
 
     cell_x, cell_t = x_g[1] - x_g[0], t_g[1] - t_g[0]
     per_window = min(candidates, t.shape[0] // windows)
@@ -126,9 +138,8 @@ def find_peak(
         u = jnp.clip(0.5 * (lo - hi) / jnp.where(curv < 0, curv, -1.0), -0.5, 0.5) * (curv < 0)
         return u, u * (0.5 * (hi - lo) + 0.5 * curv * u)
 
-    def starts(c, m, cv):
+    def starts(F, A, envelope):
         # Candidates: the largest local maxima in time of the spatial envelope (a lone spike at an end counts).
-        F, A, envelope = on_grid(c, m, cv)
         left = jnp.concatenate([jnp.full((1,), -jnp.inf, A.dtype), envelope[:-1]])
         right = jnp.concatenate([envelope[1:], jnp.full((1,), -jnp.inf, A.dtype)])
         is_local = (envelope >= left) & (envelope >= right)
@@ -153,7 +164,7 @@ def find_peak(
 
     rows, k = coeffs.shape[0], per_window if windows == 1 else min(candidates, windows * per_window)
     flat = lambda v: v.reshape(rows * k)  # noqa: E731 - (rows, candidates) -> one axis
-    x0, t0, sign, x_grid, t_grid, f_grid = (flat(v) for v in jax.vmap(starts)(coeffs_g, membrane_g, curvature))
+    x0, t0, sign, x_grid, t_grid, f_grid = (flat(v) for v in jax.vmap(starts)(*grids))
     of_row = jnp.repeat(jnp.arange(rows), k)
 
     # The search itself is not differentiated: only the final evaluation at the maximiser is.
@@ -238,7 +249,11 @@ def find_peak(
         err = jax.lax.stop_gradient(gain_all[best] / jnp.maximum(f_all[best], jnp.finfo(f_all.dtype).tiny))
         return FieldPeak(value, x_star, t_star, err)
 
-    return jax.vmap(finish)(unflat(x_r), unflat(t_r), unflat(f_r), unflat(gain), coeffs, membrane, curvature)
+    peaks = jax.vmap(finish)(unflat(x_r), unflat(t_r), unflat(f_r), unflat(gain), coeffs, membrane, curvature)
+    if coarse_peaks is None:
+        return peaks
+    order = np.argsort([i for which in (True, False) for i, r in enumerate(refined) if r == which])
+    return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b])[order], peaks, coarse_peaks)
 
 
 class PlatePeak(eqx.Module):

@@ -268,27 +268,29 @@ class ClosedFormModes(eqx.Module):
         K, nt = self.times.shape[0], s.shape[0]
         Z_sin, Z_cos, lam, omega_d, Omega = pulse_phasors(s[:, None], self.omega, self.zeta, self.duration)
         own, own_cos = jnp.imag(Z_sin) / omega_d, jnp.imag(Z_cos) / omega_d  # (nt, n)
+        # Im(Z e^{lam s}) / omega_d = Re(Z) decay_sin + Im(Z) decay_cos: real arithmetic per drop (XLA on CPU
+        # does not vectorise complex arithmetic).
         decay = cexp(lam * s[:, None])
-        lags = self.times[:, None] - self.times[None, :]  # (i, l): t_i - t_l
-        earlier = (jnp.arange(K)[:, None] > jnp.arange(K)[None, :])[..., None]
-        # Later pulses' lags are negative, where e^{lam (lag - duration)} overflows with damping: masked before the
-        # exponential, so that no inf reaches a gradient through the `where`s below.
-        safe_lags = jnp.where(earlier[..., 0], lags, 0.0)
-        Z_free, _, _ = free_phasor(safe_lags, self.omega, self.zeta, self.duration)  # (i, l, n)
-        A = jnp.sum(jnp.where(earlier, self.beta[None] * Z_free, 0.0), axis=1)  # (i, n)
-        R = self.beta[:, None, :] * own[None] + jnp.imag(A[:, None, :] * decay[None]) / omega_d  # (i, j, n)
+        decay_sin, decay_cos = jnp.imag(decay) / omega_d, jnp.real(decay) / omega_d
+        # Pulse l acts on window i > l only: the pairs (i, l), with lags t_i - t_l >= 0.
+        later, earlier = (np.asarray(v, dtype=int) for v in zip(*[(i, l) for i in range(K) for l in range(i)]))
+        lags = self.times[later] - self.times[earlier]  # (P,)
+        Z_free, _, _ = free_phasor(lags, self.omega, self.zeta, self.duration)  # (P, n)
+        acting = self.beta[earlier] * Z_free
+        A = jnp.stack([jnp.zeros_like(acting[0])] + [jnp.sum(acting[later == i], axis=0) for i in range(1, K)])
+        R = (self.beta[:, None, :] * own[None] + jnp.real(A)[:, None, :] * decay_sin[None]
+             + jnp.imag(A)[:, None, :] * decay_cos[None])  # (i, j, n)
 
         # A pulse still running at a later window's start: its exact continuation less the free one.
-        Z_lag = pulse_phasors(safe_lags[..., None], self.omega, self.zeta, self.duration)[0]  # (i, l, n)
-        sin_lag, cos_lag = sincos(Omega * safe_lags)
+        D = pulse_phasors(lags[:, None], self.omega, self.zeta, self.duration)[0] - Z_free  # (P, n)
+        sin_lag, cos_lag = sincos(Omega * lags)
 
         def running(p):
-            rows = [jnp.zeros_like(own[:p])]
-            for i in range(1, K):
-                fix = [jnp.where((lags[i, l] + s[:p] < self.duration)[:, None], self.beta[l] * (
-                    jnp.imag((Z_lag[i, l] - Z_free[i, l]) * decay[:p]) / omega_d
-                    + cos_lag[i, l] * own[:p] + sin_lag[i, l] * own_cos[:p]), 0.0) for l in range(i)]
-                rows.append(sum(fix))
+            rows = [jnp.zeros_like(own[:p])] * K
+            for q, (i, l) in enumerate(zip(later, earlier)):
+                fix = self.beta[l] * (jnp.real(D[q]) * decay_sin[:p] + jnp.imag(D[q]) * decay_cos[:p]
+                                      + cos_lag[q] * own[:p] + sin_lag[q] * own_cos[:p])
+                rows[i] = rows[i] + jnp.where((lags[q] + s[:p] < self.duration)[:, None], fix, 0.0)
             return jnp.stack(rows)
 
         head = lambda: jnp.pad(running(overlap_points), ((0, 0), (0, nt - overlap_points), (0, 0)))  # noqa: E731
@@ -462,13 +464,15 @@ def _windows(modal) -> int:
     return modal.times.shape[0] if isinstance(modal, ClosedFormModes) else 1
 
 
-def _search(setup: _Setup, board: Board, numerics: Numerics, coeffs, membrane=None, *, curvature) -> FieldPeak:
+def _search(setup: _Setup, board: Board, numerics: Numerics, coeffs, membrane=None, *, curvature,
+            refine=None) -> FieldPeak:
     """Peaks of the fields with modal coefficients `coeffs` (rows; plus the membrane term of each row when
     `membrane` is given) over the board's curvature shapes (rows where `curvature`, a tuple of bools, is True) or
-    deflection shapes, in one batched search (one compiled copy)."""
+    deflection shapes, in one batched search (one compiled copy). `refine`: per row (a tuple of bools), refined or
+    the grid's maximum; None: `numerics.refine`."""
     return find_peak(coeffs, setup.modal, setup.Q, setup.x, setup.t, board, setup.window, curvature=curvature,
                      membrane=membrane, candidates=numerics.candidates, newton_steps=numerics.newton_steps,
-                     refine=numerics.refine, windows=_windows(setup.modal))
+                     refine=numerics.refine if refine is None else refine, windows=_windows(setup.modal))
 
 
 def _gauge_points(gauges):
@@ -793,12 +797,17 @@ QUANTITIES = ("stress", "strain", "deflection")
 
 
 @filter_jit
-def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], grid_deflection: bool = False):
+def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], grid_deflection: bool = False,
+                 motion_and_flags=None):
     """Peaks of the requested quantities (stress, strain, deflection) sharing one modal solution and one batched
     search; returns (values (len(quantities),), flags). `grid_deflection` takes the deflection peak from the grid
-    without refinement (Monte-Carlo's cheap option; it undershoots by the grid's resolution)."""
+    without refinement (Monte-Carlo's cheap option; it undershoots by the grid's resolution). `motion_and_flags`:
+    the drop's `(motion, impact flags)` from `drop_motion` when computed already."""
     board = scene.board
-    motion, _, _, impact_flags = drop_motion(scene, numerics)
+    if motion_and_flags is None:
+        motion, _, _, impact_flags = drop_motion(scene, numerics)
+    else:
+        motion, impact_flags = motion_and_flags
     S = _setup(board, motion, numerics, with_check=False)
     mask = (S.k <= S.used).astype(float_dtype())
     if isinstance(board, Plate):
@@ -807,20 +816,11 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
                         flag_if(~jnp.all(jnp.isfinite(values)), Flag.NONFINITE_RESULT))
         return jnp.where(flags != 0, jnp.nan, values), flags
     kinds = sorted({"deflection" if q == "deflection" else "curvature" for q in quantities})
-    if grid_deflection and numerics.refine and "deflection" in kinds:
-        coarse = dataclasses.replace(numerics, refine=False)
-        fine_kinds = [k for k in kinds if k != "deflection"]
-        deflection = _search(S, board, coarse, mask[None], _membrane(board, coarse, mask[None], (False,)),
-                             curvature=(False,)).value
-        curv = (S.curvature * mask)[None]
-        found = (_search(S, board, numerics, curv, _membrane(board, numerics, curv, (True,)), curvature=(True,)).value
-                 if fine_kinds else jnp.zeros((0,)))
-        peaks = jnp.concatenate([deflection, found]) if kinds[0] == "deflection" else jnp.concatenate([found, deflection])
-    else:
-        rows = jnp.stack([(jnp.ones_like(S.curvature) if k == "deflection" else S.curvature) * mask for k in kinds])
-        is_curvature = tuple(k == "curvature" for k in kinds)
-        peaks = _search(S, board, numerics, rows, _membrane(board, numerics, rows, is_curvature),
-                        curvature=is_curvature).value
+    rows = jnp.stack([(jnp.ones_like(S.curvature) if k == "deflection" else S.curvature) * mask for k in kinds])
+    is_curvature = tuple(k == "curvature" for k in kinds)
+    refine = tuple(numerics.refine and not (grid_deflection and k == "deflection") for k in kinds)
+    peaks = _search(S, board, numerics, rows, _membrane(board, numerics, rows, is_curvature), curvature=is_curvature,
+                    refine=refine).value
     scale = {"stress": board.youngs_modulus * board.thickness / 2, "strain": board.thickness / 2, "deflection": 1.0}
     values = jnp.stack([scale[q] * peaks[kinds.index("deflection" if q == "deflection" else "curvature")]
                         for q in quantities])
