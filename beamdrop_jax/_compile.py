@@ -2,8 +2,9 @@
 emitters (`xla_cpu_use_fusion_emitters` off), which compile this package's programs 1.4-1.8x faster at the same
 run time (`beamdrop bench --latency`). A compile option of each program, not a global setting: the rest of the
 user's JAX is untouched, the option follows the programs through `grad` and `vmap`, and a user's own `jit` around
-them compiles with the user's options. Also: YNNPACK fusions for matrix products only (`_OPTIONS`). An `XLA_FLAGS`
-that sets an option wins; a jaxlib that does not know an option compiles as usual.
+them compiles with the user's options. Programs that ask for it (`filter_jit(dot_fusions_only=True)`) also use
+YNNPACK's library fusions for matrix products only. An `XLA_FLAGS` that sets an option wins; a jaxlib that does not
+know an option compiles as usual.
 
 `keep_programs(folder)` (the CLI's cache) keeps each compiled program as a serialised executable, so a later process
 with the same package, libraries, machine, arguments' structure and shapes loads it without tracing, lowering or
@@ -25,20 +26,18 @@ import numpy as np
 from jax.experimental import serialize_executable
 
 _CLASSIC_EMITTERS = "xla_cpu_use_fusion_emitters"
-_LIBRARY_FUSIONS = "xla_cpu_experimental_ynn_fusion_type"
-_OPTIONS = {
-    _CLASSIC_EMITTERS: False,
-    # Matrix products only: YNNPACK's reductions (by default also on) took 60 % of a clattering Monte-Carlo drop
-    # (maxima over the board of the search grids; 54 -> 35 us per drop with products only).
-    _LIBRARY_FUSIONS: "LIBRARY_FUSION_TYPE_DOT",
-}
+# YNNPACK library fusions for matrix products only (by default its reductions too), for the programs that ask:
+# its reductions over a Monte-Carlo chunk's search grids took 60 % of a clattering drop (54 -> 36 us per drop).
+# Not for every program: the plates' searches then round differently, which moved the placement optimiser on a
+# plate and mirror-image ties of the plate tables in the test suite's compile mode.
+_DOT_FUSIONS_ONLY = {"xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_DOT"}
 
 
 @functools.cache
-def compiler_options() -> dict | None:
-    """The package's compile options (`_OPTIONS`), less those that `XLA_FLAGS` sets or that jaxlib does not know
-    (checked once, by compiling a one-operation program with them, then with each where that fails); None if none
-    is left."""
+def compiler_options(dot_fusions_only: bool = False) -> dict | None:
+    """The package's compile options: `{"xla_cpu_use_fusion_emitters": False}`, with `dot_fusions_only` also
+    `_DOT_FUSIONS_ONLY`; less those that `XLA_FLAGS` sets or that jaxlib does not know (checked once, by compiling
+    a one-operation program with them, then with each where that fails). None if none is left."""
 
     def known(options):
         try:
@@ -47,7 +46,8 @@ def compiler_options() -> dict | None:
             return False
         return True
 
-    options = {k: v for k, v in _OPTIONS.items() if k not in os.environ.get("XLA_FLAGS", "")}
+    wanted = {_CLASSIC_EMITTERS: False, **(_DOT_FUSIONS_ONLY if dot_fusions_only else {})}
+    options = {k: v for k, v in wanted.items() if k not in os.environ.get("XLA_FLAGS", "")}
     if options and not known(options):
         options = {k: v for k, v in options.items() if known({k: v})}
     return options or None
@@ -117,8 +117,9 @@ class _Compiled:
     into another program (`grad`, `vmap`, an enclosing `jit`): JAX takes compile options on top-level programs only
     (and says so with a ValueError while tracing, before anything is staged, where no argument shows it)."""
 
-    def __init__(self, make, fun, jit_kwargs):
+    def __init__(self, make, fun, jit_kwargs, dot_fusions_only=False):
         self._make, self._fun, self._jit_kwargs = make, fun, jit_kwargs
+        self._dot_fusions_only = dot_fusions_only
         self._plain = make(fun, **jit_kwargs)
         self._fast = None  # made on the first call, when JAX is running anyway
         self._loaded = {}  # key -> (executable on the array leaves, output template)
@@ -131,7 +132,7 @@ class _Compiled:
         # Traced arguments (grad, vmap, an enclosing jit) stage the program into another: no options there.
         if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((args, kwargs))):
             if self._fast is None:
-                options = compiler_options()
+                options = compiler_options(self._dot_fusions_only)
                 self._fast = self._plain if options is None else self._make(
                     self._fun, compiler_options=options, **self._jit_kwargs)
             try:
@@ -152,7 +153,8 @@ class _Compiled:
         shapes = [(x.shape, str(x.dtype), bool(getattr(x, "weak_type", False))) for x in leaves]
         try:  # the static parts as their structure and plain leaves (a module's own repr may need its arrays)
             text = repr((self._name, treedef, jax.tree_util.tree_flatten(static),
-                         shapes, jax.config.jax_enable_x64, compiler_options(), _environment()))
+                         shapes, jax.config.jax_enable_x64, compiler_options(self._dot_fusions_only),
+                         _environment()))
         except Exception:  # noqa: BLE001 - what does not print is not kept
             return None
         if " at 0x" in text:
@@ -197,7 +199,7 @@ class _Compiled:
                 out_tree, [_Slot(next(slots)) if eqx.is_array(v) else v for v in out_leaves]))
             return [v for v in out_leaves if eqx.is_array(v)] + [np.uint32(int(key[:8], 16))]
 
-        options = compiler_options()
+        options = compiler_options(self._dot_fusions_only)
         hits = _cache_hits()
         try:
             compiled = jax.jit(on_arrays, **({} if options is None else {"compiler_options": options})).lower(
@@ -207,11 +209,11 @@ class _Compiled:
         return compiled, box[0], _cache_hits() == hits
 
 
-def filter_jit(fun=None, **jit_kwargs):
-    """`eqx.filter_jit`, compiled with `compiler_options()` at the top level."""
+def filter_jit(fun=None, *, dot_fusions_only: bool = False, **jit_kwargs):
+    """`eqx.filter_jit`, compiled with `compiler_options(dot_fusions_only)` at the top level."""
     if fun is None:
-        return functools.partial(filter_jit, **jit_kwargs)
-    return _Compiled(eqx.filter_jit, fun, jit_kwargs)
+        return functools.partial(filter_jit, dot_fusions_only=dot_fusions_only, **jit_kwargs)
+    return _Compiled(eqx.filter_jit, fun, jit_kwargs, dot_fusions_only)
 
 
 def jit(fun=None, **jit_kwargs):

@@ -101,13 +101,21 @@ def test_programs_compile_with_classic_emitters_only_where_jax_allows_and_the_us
         np.testing.assert_allclose(np.asarray(jax.vmap(f)(jnp.stack([x, x]))), [value, value], rtol=1e-14)
         np.testing.assert_allclose(float(jax.jit(lambda: f(x))()), value, rtol=1e-14)  # no traced argument
         assert len(plain_calls) == 5
+        # Programs that ask for YNNPACK's product fusions only (Monte-Carlo chunks): the same numbers.
+        dots = {"xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_DOT"}
+        assert _compile.compiler_options(True) == {"xla_cpu_use_fusion_emitters": False, **dots}
+        a = np.random.default_rng(0).normal(size=(40, 7))
+        grid_max = _compile.filter_jit(dot_fusions_only=True)(lambda m: jnp.abs(m @ m[:9].T).max(axis=0))
+        np.testing.assert_allclose(np.asarray(grid_max(jnp.asarray(a))), np.abs(a @ a[:9].T).max(axis=0), rtol=1e-14)
         monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")
         _compile.compiler_options.cache_clear()
         assert _compile.compiler_options() is None
+        assert _compile.compiler_options(True) == dots
         monkeypatch.setenv("XLA_FLAGS", "")
         monkeypatch.setattr(_compile, "_CLASSIC_EMITTERS", "xla_cpu_no_such_option_for_beamdrop")
         _compile.compiler_options.cache_clear()
         assert _compile.compiler_options() is None
+        assert _compile.compiler_options(True) == dots  # each option checked on its own when together they fail
     finally:
         monkeypatch.undo()
         _compile.compiler_options.cache_clear()

@@ -13,8 +13,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 import beamdrop_jax as bd
+from beamdrop_jax import _scene
 
-FIELDS = [f"{section}.{name}" for section, cls in bd._scene.SECTIONS.items() for name in cls.RANGES]
+FIELDS = [f"{section}.{name}" for section, cls in _scene.SECTIONS.items() for name in cls.RANGES]
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 ABSURD = st.sampled_from([0.0, -0.0, -1.0, 5e-324, 1e-300, 1e-30, 1e-6, 1e6, 1e30, 1e300, math.inf, -math.inf,
@@ -32,7 +33,7 @@ def _value(field, number):
 
 def _names(message: str, field: str) -> bool:
     section, name = field.split(".")
-    cls = bd._scene.SECTIONS[section].__name__
+    cls = _scene.SECTIONS[section].__name__
     return name in message or cls in message
 
 
@@ -98,7 +99,7 @@ def test_valid_scenes_give_a_number_or_a_flag(scene):
     try:
         eager = bd.simulate(scene)
     except ValueError as err:
-        assert int(res.flags) != 0 and any(f.split(".")[1] in str(err) or bd._scene.SECTIONS[f.split(".")[0]].__name__
+        assert int(res.flags) != 0 and any(f.split(".")[1] in str(err) or _scene.SECTIONS[f.split(".")[0]].__name__
                                            in str(err) for f in FIELDS), str(err)
     else:
         assert int(res.flags) == 0
@@ -143,3 +144,4 @@ def test_routh_impulse_names_its_bad_argument_or_answers(B, v0, mu, e):
     if int(imp.flags) == 0:
         assert np.all(np.isfinite(P)) and P[1] >= 0 and abs(P[0]) <= float(mu) * P[1] * (1 + 1e-9) + 1e-300
         assert float(imp.energy_change) <= 1e-9 * max(1.0, float(np.abs(P).sum()) ** 2)
+
