@@ -117,3 +117,35 @@ def test_plate_agrees_with_opensees_shell_elements():
                                     element_size=1.5e-3, dt=5e-6)
     np.testing.assert_allclose(fe.peak_strain, np.asarray(res.gauges.peak_strain), rtol=2e-3)
     np.testing.assert_allclose(fe.peak_time, np.asarray(res.gauges.peak_time), atol=2 * fe.dt)
+
+
+# A board-level drop test (Fuchs & Major, Frattura ed Integrita Strutturale 15 (2011) 64-73): the board oscillated
+# at 280 Hz, the strain at its centre at the first deflection was 2e-3, its largest peak-to-peak deflection about
+# 5 mm, under 1500 g over a 1 ms pulse as the paper states. The paper does not dimension its board, so notebook 09
+# builds boards from the measured frequency (FR4 of the jesd22-board scene).
+FUCHS_F1, FUCHS_STRAIN, FUCHS_DEFLECTION = 280.0, 2e-3, 5e-3 / 2
+
+
+def _board_at_fuchs_frequency(length):
+    c = math.sqrt(24e9 / (12 * 1850.0))
+    return bd.Board(length=length, thickness=FUCHS_F1 * 2 / math.pi * length**2 / c, width=0.077,
+                    youngs_modulus=24e9, density=1850.0)
+
+
+def test_board_level_drop_measurement_as_the_notebook_says():
+    pulses = {tau: bd.HalfSine.from_peak(1500 * bd.GRAVITY, tau) for tau in (1e-3, 0.5e-3)}
+    res = {(L, tau): bd.board_response(_board_at_fuchs_frequency(L), p)
+           for L in (0.10, 0.15) for tau, p in pulses.items()}
+    for tau in pulses:
+        np.testing.assert_allclose(float(res[0.10, tau].frequencies[0]), FUCHS_F1, rtol=1e-9)
+        # At a given first frequency the board's size does not matter.
+        np.testing.assert_allclose(float(res[0.15, tau].peak.strain), float(res[0.10, tau].peak.strain), rtol=1e-6)
+    r = res[0.10, 0.5e-3]
+    # Strain per centre deflection, first mode's closed form: (h / 2) pi^2 / L^2 = pi f1 / sqrt(E / (12 rho)).
+    per_deflection = float(r.peak.strain) / float(r.peak.deflection)
+    np.testing.assert_allclose(per_deflection, math.pi * FUCHS_F1 / math.sqrt(24e9 / (12 * 1850.0)), rtol=5e-3)
+    # The measured deflection through it: 6 % above the measured strain (the notebook's "where it agrees").
+    assert abs(per_deflection * FUCHS_DEFLECTION / FUCHS_STRAIN - 1.06) < 0.01
+    # The response to the pulse: 2.66 times the measurement at the stated 1 ms, 1.40 at condition B's 0.5 ms.
+    np.testing.assert_allclose(float(res[0.10, 1e-3].peak.strain) / FUCHS_STRAIN, 2.66, atol=0.01)
+    np.testing.assert_allclose(float(r.peak.strain) / FUCHS_STRAIN, 1.40, atol=0.01)
