@@ -33,6 +33,10 @@ _CLASSIC_EMITTERS = "xla_cpu_use_fusion_emitters"
 _DOT_FUSIONS_ONLY = {"xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_DOT"}
 
 
+def _wanted(dot_fusions_only: bool) -> dict:
+    return {_CLASSIC_EMITTERS: False, **(_DOT_FUSIONS_ONLY if dot_fusions_only else {})}
+
+
 @functools.cache
 def compiler_options(dot_fusions_only: bool = False) -> dict | None:
     """The package's compile options: `{"xla_cpu_use_fusion_emitters": False}`, with `dot_fusions_only` also
@@ -46,8 +50,7 @@ def compiler_options(dot_fusions_only: bool = False) -> dict | None:
             return False
         return True
 
-    wanted = {_CLASSIC_EMITTERS: False, **(_DOT_FUSIONS_ONLY if dot_fusions_only else {})}
-    options = {k: v for k, v in wanted.items() if k not in os.environ.get("XLA_FLAGS", "")}
+    options = {k: v for k, v in _wanted(dot_fusions_only).items() if k not in os.environ.get("XLA_FLAGS", "")}
     if options and not known(options):
         options = {k: v for k, v in options.items() if known({k: v})}
     return options or None
@@ -131,15 +134,15 @@ class _Compiled:
     def __call__(self, *args, **kwargs):
         # Traced arguments (grad, vmap, an enclosing jit) stage the program into another: no options there.
         if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((args, kwargs))):
-            if self._fast is None:
-                options = compiler_options(self._dot_fusions_only)
-                self._fast = self._plain if options is None else self._make(
-                    self._fun, compiler_options=options, **self._jit_kwargs)
             try:
                 if _folders and self._keepable:
                     out = self._call_kept(_folders[-1], args, kwargs)
                     if out is not None:
                         return out
+                if self._fast is None:
+                    options = compiler_options(self._dot_fusions_only)
+                    self._fast = self._plain if options is None else self._make(
+                        self._fun, compiler_options=options, **self._jit_kwargs)
                 return self._fast(*args, **kwargs)
             except ValueError as error:
                 if "compiler_options" not in str(error):
@@ -151,10 +154,12 @@ class _Compiled:
         arrays, static = eqx.partition((args, kwargs), eqx.is_array)
         leaves, treedef = jax.tree_util.tree_flatten(arrays)
         shapes = [(x.shape, str(x.dtype), bool(getattr(x, "weak_type", False))) for x in leaves]
+        # The options as asked for and XLA_FLAGS, not as probed: with jaxlib's version (in the environment) they
+        # decide the probe's answer, and a loaded program then needs no probe (a compile, 15 ms).
         try:  # the static parts as their structure and plain leaves (a module's own repr may need its arrays)
             text = repr((self._name, treedef, jax.tree_util.tree_flatten(static),
-                         shapes, jax.config.jax_enable_x64, compiler_options(self._dot_fusions_only),
-                         _environment()))
+                         shapes, jax.config.jax_enable_x64, _wanted(self._dot_fusions_only),
+                         os.environ.get("XLA_FLAGS", ""), _environment()))
         except Exception:  # noqa: BLE001 - what does not print is not kept
             return None
         if " at 0x" in text:

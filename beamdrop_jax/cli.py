@@ -10,6 +10,7 @@ or BEAMDROP_NO_CACHE=1 turn it off, BEAMDROP_CACHE_DIR moves it); a run that mus
 import argparse
 import contextlib
 import difflib
+import functools
 import hashlib
 import json
 import math
@@ -21,6 +22,7 @@ STANDARDS = ("ista-1a", "ista-2a", "mil-std-810h-516-iv", "iec-60068-2-31", "jes
 QUANTITIES = {"stress": ("MPa", 1e-6), "strain": ("microstrain", 1e6), "deflection": ("mm", 1e3)}
 
 
+@functools.cache
 def _version() -> str:
     from importlib.metadata import PackageNotFoundError, version
 
