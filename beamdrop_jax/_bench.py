@@ -609,7 +609,9 @@ def latency_bench(repeats: int = 5) -> dict:
     target, the import with a first `Scene.default()`, which loads JAX and the scene's modules) and `beamdrop
     drop --no-plots` (empty and warm compilation cache) as ratios to a bare JAX process timed in the same run; the
     first `simulate` and the first `jax.grad(peak_stress)` in seconds (compile and run, no cache). Each with its
-    target (`LATENCY_TARGETS`)."""
+    target (`LATENCY_TARGETS`). The processes keep Python's bytecode cache whatever `PYTHONDONTWRITEBYTECODE`
+    says: an installed package has its bytecode compiled at install, and a source checkout without it would time
+    Python compiling the package's source."""
     import os
     import subprocess
     import sys
@@ -617,7 +619,8 @@ def latency_bench(repeats: int = 5) -> dict:
 
     def wall(cmd, env=None):
         t0 = time.perf_counter()
-        done = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, **(env or {})})
+        base = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+        done = subprocess.run(cmd, capture_output=True, text=True, env={**base, **(env or {})})
         if done.returncode:
             raise RuntimeError(f"{' '.join(cmd)} failed: {done.stderr.strip().splitlines()[-1:]}")
         return time.perf_counter() - t0, done.stdout
