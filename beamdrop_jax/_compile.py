@@ -8,7 +8,7 @@ know an option compiles as usual.
 
 `keep_programs(folder)` (the CLI's cache) keeps each compiled program as a serialised executable, so a later process
 with the same package, libraries, machine, arguments' structure and shapes loads it without tracing, lowering or
-compiling (a warm `beamdrop drop --no-plots` 1.4 -> 0.85 s)."""
+compiling (a warm `beamdrop drop --no-plots` 1.4 -> 0.85 s). `prune_folder` bounds such a folder's size."""
 
 import contextlib
 import functools
@@ -71,6 +71,30 @@ def keep_programs(folder):
         yield
     finally:
         _folders.pop()
+
+
+def prune_folder(folder, max_bytes: int, keep=lambda path: False) -> int:
+    """Delete the least recently used files under `folder` (by modification time; a kept program is touched when
+    loaded) until the rest fit in `max_bytes`; files that `keep` accepts stay. Returns the bytes freed. A file
+    another process removes first, or one that cannot be removed, is skipped."""
+    files = []
+    for path in Path(folder).rglob("*"):
+        try:
+            if path.is_file() and not keep(path):
+                stat = path.stat()
+                files.append((stat.st_mtime, stat.st_size, path))
+        except OSError:
+            continue
+    total, freed = sum(size for _, size, _ in files), 0
+    for _, size, path in sorted(files, key=lambda f: f[0]):
+        if total - freed <= max_bytes:
+            break
+        try:
+            path.unlink()
+            freed += size
+        except OSError:
+            continue
+    return freed
 
 
 @functools.cache
@@ -170,6 +194,8 @@ class _Compiled:
             try:
                 payload, in_tree, out_tree, template = pickle.loads(path.read_bytes())
                 compiled = serialize_executable.deserialize_and_load(payload, in_tree, out_tree)
+                with contextlib.suppress(OSError):
+                    os.utime(path)  # used now: `prune_folder` removes the least recently used first
             except Exception:  # noqa: BLE001 - absent, partly written or unreadable: compile it again
                 compiled, template, fresh = self._compile_kept(treedef, static, leaves, key)
                 if compiled is None:

@@ -4,7 +4,8 @@ Every bad argument is one line on stderr and exit status 2 before any computatio
 on stdout (units in the keys) instead of the table; messages about written files then go to stderr.
 Compiled programs are kept in a persistent cache (the user's cache folder: JAX's compilation cache, and the
 package's own programs as executables under `programs/`, which later runs load without tracing them; `--no-cache`
-or BEAMDROP_NO_CACHE=1 turn it off, BEAMDROP_CACHE_DIR moves it); a run that must compile says so on stderr.
+or BEAMDROP_NO_CACHE=1 turn it off, BEAMDROP_CACHE_DIR moves it; a run that compiles removes the least recently
+used programs beyond 1 GiB); a run that must compile says so on stderr.
 """
 
 import argparse
@@ -518,6 +519,9 @@ def _parse(argv) -> argparse.Namespace:
     return args
 
 
+CACHE_MAX_BYTES = 1 << 30  # the least recently used programs go beyond this (older package versions' first)
+
+
 def _cache_dir() -> Path:
     if os.environ.get("BEAMDROP_CACHE_DIR"):
         return Path(os.environ["BEAMDROP_CACHE_DIR"])
@@ -551,6 +555,16 @@ def _setup_jax(args):
         print(f"beamdrop: compiling (first run with these settings, 5-10 s; kept in {cache} for later runs)",
               file=sys.stderr)
     return stamp
+
+
+def _bound_cache(stamp: Path) -> None:
+    """Mark the run's settings as compiled; after a run that compiled, remove the cache's least recently used
+    programs beyond `CACHE_MAX_BYTES` (the settings' stamps stay)."""
+    if not stamp.exists():
+        from ._compile import prune_folder
+
+        prune_folder(stamp.parent, CACHE_MAX_BYTES, keep=lambda path: path.name.startswith("compiled-"))
+    stamp.touch()
 
 
 @contextlib.contextmanager
@@ -587,7 +601,7 @@ def main(argv=None) -> int:
         print(f"beamdrop {args.command}: error: {err}", file=sys.stderr)
         return 2
     if stamp is not None:
-        stamp.touch()
+        _bound_cache(stamp)
     if args.json:
         print(json.dumps(output.report, indent=1, allow_nan=False))
     return 0

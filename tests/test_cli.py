@@ -152,8 +152,10 @@ def test_kept_programs_skip_tracing_and_give_the_same_numbers(tmp_path, monkeypa
             raise AssertionError("traced again")
 
         monkeypatch.setattr(program, "_fun", untraceable)
+        os.utime(folder / kept[0], (1e9, 1e9))
         again = bd.simulate(scene, numerics)
         assert traced == [] and len(program._loaded) == 1  # loaded from the folder
+        assert (folder / kept[0]).stat().st_mtime > 1.7e9  # and marked as used now, for `prune_folder`
         for res in (first, again):
             for get in (lambda r: r.peak.stress, lambda r: r.peak.x, lambda r: r.peak.t, lambda r: r.frequencies,
                         lambda r: r.support_jumps, lambda r: r.error_estimate, lambda r: r.impulse.P):
@@ -177,3 +179,26 @@ def test_kept_programs_skip_tracing_and_give_the_same_numbers(tmp_path, monkeypa
         res = bd.simulate(scene, numerics)
         np.testing.assert_allclose(float(res.peak.stress), float(usual.peak.stress), rtol=1e-13)
         assert not (tmp_path / "other").exists()
+
+
+def test_cache_keeps_its_size_by_removing_the_least_recently_used(tmp_path, monkeypatch):
+    """`prune_folder` removes the oldest files first until the rest fit; the CLI prunes its cache after a run that
+    compiled (no stamp yet for its settings), never the stamps, and not after a warm run."""
+    from beamdrop_jax import _compile, cli
+
+    folder = tmp_path / "xla"
+    (folder / "programs").mkdir(parents=True)
+    files = {"compiled-aaaa": 0, "old-cache": 400, "programs/mid.xla": 300, "new-cache": 300}
+    for age, (name, size) in enumerate(files.items()):
+        (folder / name).write_bytes(b"x" * size)
+        os.utime(folder / name, (1e9 + age, 1e9 + age))
+    stamps = lambda path: path.name.startswith("compiled-")  # noqa: E731
+    assert _compile.prune_folder(folder, 10_000) == 0
+    assert _compile.prune_folder(folder, 700, keep=stamps) == 400
+    assert sorted(p.name for p in folder.rglob("*") if p.is_file()) == ["compiled-aaaa", "mid.xla", "new-cache"]
+    monkeypatch.setattr(cli, "CACHE_MAX_BYTES", 300)
+    cli._bound_cache(folder / "compiled-aaaa")  # a warm run: nothing removed
+    assert (folder / "programs" / "mid.xla").exists()
+    cli._bound_cache(folder / "compiled-bbbb")  # a run that compiled
+    assert sorted(p.name for p in folder.rglob("*") if p.is_file()) == ["compiled-aaaa", "compiled-bbbb",
+                                                                         "new-cache"]
