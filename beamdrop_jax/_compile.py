@@ -8,7 +8,8 @@ know an option compiles as usual.
 
 `keep_programs(folder)` (the CLI's cache) keeps each compiled program as a serialised executable, so a later process
 with the same package, libraries, machine, arguments' structure and shapes loads it without tracing, lowering or
-compiling (a warm `beamdrop drop --no-plots` 1.4 -> 0.85 s). `prune_folder` bounds such a folder's size."""
+compiling. `preload_programs` starts loading named kept programs in a background thread (loading runs outside
+Python's lock, so it overlaps the caller's imports). `prune_folder` bounds such a folder's size."""
 
 import contextlib
 import functools
@@ -18,9 +19,10 @@ import inspect
 import os
 import pickle
 import platform
+import threading
+from concurrent.futures import Future
 from pathlib import Path
 
-import equinox as eqx
 import jax
 import numpy as np
 from jax.experimental import serialize_executable
@@ -56,7 +58,8 @@ def compiler_options(dot_fusions_only: bool = False) -> dict | None:
     return options or None
 
 
-_folders: list[Path] = []  # the folder of `keep_programs`, while one is active
+_folders: list[tuple[Path, list[str]]] = []  # the folder of `keep_programs` and the programs used, while active
+_preloaded: dict[Path, Future] = {}  # kept programs being loaded by `preload_programs`
 
 
 @contextlib.contextmanager
@@ -65,12 +68,40 @@ def keep_programs(folder):
     executables and loaded from there when a call matches one: same function, package source, library versions,
     machine, precision, compile options, static arguments, and arrays' shapes and dtypes. Only module-level
     `filter_jit` functions whose static arguments print without object addresses are kept (a closure's name does
-    not say what it captured)."""
-    _folders.append(Path(folder))
+    not say what it captured). Yields a list that collects the file names of the programs used (loaded or kept),
+    for `preload_programs` in a later process."""
+    used = []
+    _folders.append((Path(folder), used))
     try:
-        yield
+        yield used
     finally:
         _folders.pop()
+
+
+def _deserialise(data: bytes):
+    """A kept program's file contents -> (executable, pickled output template)."""
+    payload, in_tree, out_tree, template = pickle.loads(data)
+    return serialize_executable.deserialize_and_load(payload, in_tree, out_tree), template
+
+
+def preload_programs(folder, names) -> threading.Thread:
+    """Start loading the kept programs `names` (file names in `folder`, as collected by `keep_programs`) in a
+    background thread; a call that needs one of them then waits for it instead of loading it itself. A hint only:
+    a program absent, unreadable or never called costs its loading and nothing else. Returns the thread."""
+    jobs = [(Path(folder) / name, Future()) for name in names if isinstance(name, str) and "/" not in name]
+    for path, future in jobs:
+        _preloaded[path] = future
+
+    def load():
+        for path, future in jobs:
+            try:
+                future.set_result(_deserialise(path.read_bytes()))
+            except Exception as error:  # noqa: BLE001 - the call loads or compiles it itself and says why
+                future.set_exception(error)
+
+    thread = threading.Thread(target=load, name="beamdrop-preload", daemon=True)
+    thread.start()
+    return thread
 
 
 def prune_folder(folder, max_bytes: int, keep=lambda path: False) -> int:
@@ -151,7 +182,7 @@ class _Compiled:
         self._fast = None  # made on the first call, when JAX is running anyway
         self._loaded = {}  # key -> (executable on the array leaves, output template)
         # `jax.jit` traces Python numbers, which a kept program would fix as constants: Equinox's programs only.
-        self._keepable = make is eqx.filter_jit and inspect.isfunction(fun) and "<" not in fun.__qualname__
+        self._keepable = make is _filter_jit() and inspect.isfunction(fun) and "<" not in fun.__qualname__
         self._name = f"{getattr(fun, '__module__', '')}.{getattr(fun, '__qualname__', '')}"
         functools.update_wrapper(self, fun)
 
@@ -160,7 +191,7 @@ class _Compiled:
         if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((args, kwargs))):
             try:
                 if _folders and self._keepable:
-                    out = self._call_kept(_folders[-1], args, kwargs)
+                    out = self._call_kept(*_folders[-1], args, kwargs)
                     if out is not None:
                         return out
                 if self._fast is None:
@@ -173,8 +204,10 @@ class _Compiled:
                     raise
         return self._plain(*args, **kwargs)
 
-    def _call_kept(self, folder: Path, args, kwargs):
+    def _call_kept(self, folder: Path, used: list[str], args, kwargs):
         """The call through a kept program (loaded, or compiled and kept now); None where it cannot be kept."""
+        import equinox as eqx
+
         arrays, static = eqx.partition((args, kwargs), eqx.is_array)
         leaves, treedef = jax.tree_util.tree_flatten(arrays)
         shapes = [(x.shape, str(x.dtype), bool(getattr(x, "weak_type", False))) for x in leaves]
@@ -191,9 +224,11 @@ class _Compiled:
         key = hashlib.sha256(text.encode()).hexdigest()[:40]
         if key not in self._loaded:
             path = folder / f"{self._name.rsplit('.', 1)[-1]}-{key}.xla"
+            preloaded = _preloaded.pop(path, None)
             try:
-                payload, in_tree, out_tree, template = pickle.loads(path.read_bytes())
-                compiled = serialize_executable.deserialize_and_load(payload, in_tree, out_tree)
+                compiled, template = (_deserialise(path.read_bytes()) if preloaded is None
+                                      else preloaded.result())
+                template = pickle.loads(template)
                 with contextlib.suppress(OSError):
                     os.utime(path)  # used now: `prune_folder` removes the least recently used first
             except Exception:  # noqa: BLE001 - absent, partly written or unreadable: compile it again
@@ -204,11 +239,15 @@ class _Compiled:
                     try:
                         folder.mkdir(parents=True, exist_ok=True)
                         scratch = path.with_suffix(f".{os.getpid()}")
-                        scratch.write_bytes(pickle.dumps((*serialize_executable.serialize(compiled), template)))
+                        # The template pickled apart: it names the package's classes, which a preloading thread
+                        # would have to import.
+                        scratch.write_bytes(pickle.dumps((*serialize_executable.serialize(compiled),
+                                                          pickle.dumps(template))))
                         scratch.replace(path)  # whole files only: another process may be reading
                     except Exception:  # noqa: BLE001 - an output that does not pickle, a full disk: not kept
                         pass
             self._loaded[key] = (compiled, template)
+            used.append(path.name)
         call, template = self._loaded[key]
         outputs = call(*leaves)
         return jax.tree_util.tree_map(lambda v: outputs[v] if isinstance(v, _Slot) else v, template)
@@ -220,6 +259,8 @@ class _Compiled:
         compiled here are kept; the program also returns its key, so that JAX's cache holds it only where it was
         compiled here (a new package source with the same program is compiled and kept anew). (None, None,
         False) where it does not compile so (the usual call says why)."""
+        import equinox as eqx
+
         box = []
 
         def on_arrays(*arrays):
@@ -244,7 +285,15 @@ def filter_jit(fun=None, *, dot_fusions_only: bool = False, **jit_kwargs):
     """`eqx.filter_jit`, compiled with `compiler_options(dot_fusions_only)` at the top level."""
     if fun is None:
         return functools.partial(filter_jit, dot_fusions_only=dot_fusions_only, **jit_kwargs)
-    return _Compiled(eqx.filter_jit, fun, jit_kwargs, dot_fusions_only)
+    return _Compiled(_filter_jit(), fun, jit_kwargs, dot_fusions_only)
+
+
+def _filter_jit():
+    # Equinox is imported where first needed, not with this module: the CLI imports this module first to start
+    # `preload_programs` while Equinox and the package import.
+    import equinox as eqx
+
+    return eqx.filter_jit
 
 
 def jit(fun=None, **jit_kwargs):

@@ -5,7 +5,8 @@ on stdout (units in the keys) instead of the table; messages about written files
 Compiled programs are kept in a persistent cache (the user's cache folder: JAX's compilation cache, and the
 package's own programs as executables under `programs/`, which later runs load without tracing them; `--no-cache`
 or BEAMDROP_NO_CACHE=1 turn it off, BEAMDROP_CACHE_DIR moves it; a run that compiles removes the least recently
-used programs beyond 1 GiB); a run that must compile says so on stderr.
+used programs beyond 1 GiB; the programs a command line used are listed under `runs/`, and its next run loads them
+in the background while the package imports); a run that must compile says so on stderr.
 """
 
 import argparse
@@ -557,6 +558,28 @@ def _setup_jax(args):
     return stamp
 
 
+def _run_record(argv) -> Path | None:
+    """Where the kept programs that this command line (in this folder) used are listed, so that its next run
+    starts loading them before the package has imported; None without a cache."""
+    if "--no-cache" in argv or os.environ.get("BEAMDROP_NO_CACHE", "") not in ("", "0"):
+        return None
+    key = hashlib.sha1(repr((os.getcwd(), list(argv))).encode()).hexdigest()[:16]
+    return _cache_dir() / "runs" / f"{key}.json"
+
+
+def _preload(record: Path | None):
+    """(names listed in `record`, the thread loading them) or ((), None)."""
+    try:
+        names = json.loads(record.read_text())
+    except (AttributeError, OSError, ValueError):
+        return (), None
+    if not isinstance(names, list):
+        return (), None
+    from ._compile import preload_programs
+
+    return names, preload_programs(_cache_dir() / "programs", names)
+
+
 def _bound_cache(stamp: Path) -> None:
     """Mark the run's settings as compiled; after a run that compiled, remove the cache's least recently used
     programs beyond `CACHE_MAX_BYTES` (the settings' stamps stay)."""
@@ -586,22 +609,34 @@ def _figures_to_files():
 
 
 def main(argv=None) -> int:
-    args = _parse(argv)
-    output = _Output(args)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    record = _run_record(argv)
+    # The programs this command line used last time load in the background while the package imports.
+    listed, preloading = _preload(record)
     try:
-        if _writes_files(args):
-            _check_out(args)
-        stamp = _setup_jax(args)
-        from ._compile import keep_programs
+        args = _parse(argv)
+        output = _Output(args)
+        try:
+            if _writes_files(args):
+                _check_out(args)
+            stamp = _setup_jax(args)
+            from ._compile import keep_programs
 
-        with (keep_programs(_cache_dir() / "programs") if stamp is not None else contextlib.nullcontext(),
-              _figures_to_files()):
-            args.func(args, output)
-    except (ValueError, FileNotFoundError) as err:
-        print(f"beamdrop {args.command}: error: {err}", file=sys.stderr)
-        return 2
+            keeping = keep_programs(_cache_dir() / "programs") if stamp is not None else contextlib.nullcontext([])
+            with keeping as used, _figures_to_files():
+                args.func(args, output)
+        except (ValueError, FileNotFoundError) as err:
+            print(f"beamdrop {args.command}: error: {err}", file=sys.stderr)
+            return 2
+    finally:
+        if preloading is not None:  # never exit while it runs in XLA
+            preloading.join()
     if stamp is not None:
         _bound_cache(stamp)
+        if used and used != listed:
+            with contextlib.suppress(OSError):
+                record.parent.mkdir(parents=True, exist_ok=True)
+                record.write_text(json.dumps(used))
     if args.json:
         print(json.dumps(output.report, indent=1, allow_nan=False))
     return 0

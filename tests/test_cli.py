@@ -156,7 +156,18 @@ def test_kept_programs_skip_tracing_and_give_the_same_numbers(tmp_path, monkeypa
         again = bd.simulate(scene, numerics)
         assert traced == [] and len(program._loaded) == 1  # loaded from the folder
         assert (folder / kept[0]).stat().st_mtime > 1.7e9  # and marked as used now, for `prune_folder`
-        for res in (first, again):
+        # Loaded ahead by `preload_programs` (the CLI's next run of a command line): the call takes it from there.
+        program._loaded.clear()
+        (folder / "broken.xla").write_bytes(b"not a program")
+        _compile.preload_programs(folder, [kept[0], "broken.xla", "absent.xla"]).join()
+        assert _compile._preloaded[folder / kept[0]].exception() is None
+        assert _compile._preloaded[folder / "broken.xla"].exception() is not None
+        monkeypatch.setattr(_compile, "_deserialise", lambda data: pytest.fail("loaded again"))
+        preloaded = bd.simulate(scene, numerics)
+        assert folder / kept[0] not in _compile._preloaded and traced == []
+        (folder / "broken.xla").unlink()
+        _compile._preloaded.clear()
+        for res in (first, again, preloaded):
             for get in (lambda r: r.peak.stress, lambda r: r.peak.x, lambda r: r.peak.t, lambda r: r.frequencies,
                         lambda r: r.support_jumps, lambda r: r.error_estimate, lambda r: r.impulse.P):
                 np.testing.assert_allclose(np.asarray(get(res)), np.asarray(get(usual)), rtol=1e-13, atol=0)
@@ -179,6 +190,33 @@ def test_kept_programs_skip_tracing_and_give_the_same_numbers(tmp_path, monkeypa
         res = bd.simulate(scene, numerics)
         np.testing.assert_allclose(float(res.peak.stress), float(usual.peak.stress), rtol=1e-13)
         assert not (tmp_path / "other").exists()
+
+
+def test_cli_lists_the_programs_a_command_line_used_and_loads_them_ahead_next_time(tmp_path, monkeypatch, capsys):
+    """After a run with the cache, the programs it used are listed for its command line (and folder); the next run
+    of that line starts loading them before it parses, and prints the same; another line, or no cache, lists
+    nothing and loads nothing ahead."""
+    from beamdrop_jax import _compile, cli
+
+    monkeypatch.setenv("BEAMDROP_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    argv = ["drop", "--no-plots", "--n-modes", "5"]
+    assert cli._preload(cli._run_record(argv)) == ((), None)
+    assert cli.main(argv) == 0
+    first = capsys.readouterr().out
+    listed = json.loads(cli._run_record(argv).read_text())
+    assert len(listed) == 1 and listed[0].startswith("_simulate-")
+    assert (tmp_path / "cache" / "programs" / listed[0]).exists()
+    started = []
+    preload = _compile.preload_programs
+    monkeypatch.setattr(_compile, "preload_programs", lambda folder, names: started.append(names) or preload(
+        folder, names))
+    assert cli.main(argv) == 0
+    assert started == [listed] and capsys.readouterr().out == first
+    _compile._preloaded.clear()
+    assert cli._run_record(argv + ["--no-cache"]) is None and cli._run_record(["drop"]) != cli._run_record(argv)
+    monkeypatch.setenv("BEAMDROP_NO_CACHE", "1")
+    assert cli._run_record(argv) is None
 
 
 def test_cache_keeps_its_size_by_removing_the_least_recently_used(tmp_path, monkeypatch):
