@@ -169,6 +169,8 @@ def find_peak(
 
     # The search itself is not differentiated: only the final evaluation at the maximiser is.
     coeffs_c, board_c, window_c, modal_c, membrane_c = stop_gradient((coeffs, board, window, modal, membrane))
+    if hasattr(modal_c, "for_search"):  # prepared once for the many jets below
+        modal_c = modal_c.for_search()
     per_candidate = (coeffs_c[of_row], None if membrane is None else membrane_c[of_row], curvature[of_row], sign)
     length_c = board_c.length
 

@@ -197,6 +197,36 @@ def test_windowed_train_factors_equal_the_sum_of_shifted_responses(case):
     assert kept[-1].all() and (case != "padded" or not kept[1].any())
 
 
+@pytest.mark.parametrize("case", ["apart", "overlapping", "padded", "damped impulse", "long pulse", "resonant"])
+def test_search_jets_of_a_pulse_train_equal_the_sum_of_shifted_pulse_jets(case):
+    """The Newton search's jets of a pulse train (`ClosedFormModes.for_search`: from the last pulse started, the
+    earlier pulses as free vibration plus the running ones' corrections) equal every pulse's own shifted closed
+    form summed: q against `unit_response`, q' and q'' against `unit_response_jet`, at times inside each pulse,
+    at its end, between pulses and long after."""
+    from beamdrop_jax._board import unit_response, unit_response_jet
+    from beamdrop_jax._simulate import ClosedFormModes
+
+    board = bd.Board(damping_ratio=0.03) if case == "damped impulse" else bd.Board()
+    omega = bd.natural_frequencies(board, 5)
+    resonant = math.pi / float(omega[1])
+    tau = {"damped impulse": 0.0, "long pulse": 4e-3, "resonant": resonant}.get(case, 5e-4)
+    times = {"apart": [0.0, 3.1e-3, 0.41], "overlapping": [0.0, 2e-4, 4.5e-4], "padded": [0.0, 1e-4, 1e-4],
+             "damped impulse": [0.0, 1e-3, 1.2e-3], "long pulse": [0.0, 1e-3, 6e-3]}.get(case, [0.0, 3e-4, 5e-4])
+    beta = jnp.asarray(np.random.default_rng(4).normal(size=(3, 5)))
+    modal = ClosedFormModes(omega, board.damping_ratio, jnp.asarray(tau), beta, jnp.asarray(times))
+    search = modal.for_search()
+    ts = sorted({float(t0 + d) for t0 in times for d in (0.0, 1e-5, 0.5 * tau, tau, tau + 1e-6, 2e-3)}
+                | set(np.linspace(0.0, times[-1] + 0.01, 23).tolist()))
+    jets = np.asarray(jax.jit(jax.vmap(search.jet))(jnp.asarray(ts)))  # (3, len(ts), n)
+    since = np.asarray(ts)[:, None, None] - np.asarray(times)[None, :, None]  # (t, pulse, 1)
+    q = np.sum(np.asarray(beta) * np.asarray(unit_response(since, omega, board.damping_ratio, tau)), axis=1)
+    d = [np.sum(np.where(since >= 0, np.asarray(beta) * np.asarray(r), 0.0), axis=1)
+         for r in unit_response_jet(since, omega, board.damping_ratio, tau)[1:]]
+    for got, ref, rate in zip(jets, [q, *d], (1.0, omega, omega**2)):
+        scale = np.abs(np.asarray(beta)).max() / np.asarray(omega) * np.asarray(rate)
+        np.testing.assert_allclose(got / scale, ref / scale, rtol=0, atol=1e-11)
+
+
 def test_windowed_train_factors_with_a_duration_per_drop_equal_the_sum_of_shifted_responses():
     """Batched drops with their own contact durations (Monte-Carlo over the duration): a short pulse corrected on
     the window's head and a long one corrected everywhere, side by side in one vmapped call."""
