@@ -210,7 +210,9 @@ def _check_eagerly(B, v0, mu, e):
     RESTITUTION.require(e, "restitution")
     if not np.all(np.isfinite(np.asarray(v0))):
         raise ValueError(f"v0 = {np.asarray(v0).tolist()}: the approach velocity (S0, C0) must be finite, m/s")
-    if np.ndim(B) == 2 and not bool(_positive_definite(np.asarray(B))):
+    with np.errstate(invalid="ignore", over="ignore"):  # inf * 0 in a bad B: that B is refused below
+        positive_definite = bool(_positive_definite(np.asarray(B)))
+    if not positive_definite:
         raise ValueError(f"B = {np.asarray(B).tolist()}: the contact's inverse inertia must be a finite, symmetric, "
                          "positive definite 2 x 2 matrix [[B1, -B3], [-B3, B2]] (B1 > 0, B1 B2 - B3^2 > 0), 1/kg")
 
@@ -245,8 +247,12 @@ def routh_impulse(
     v0 = as_float(v0, "v0", "(S0, C0), finite, m/s")
     mu = as_float(friction, "friction", FRICTION)
     e = as_float(restitution, "restitution", RESTITUTION)
-    if B.shape[-2:] != (2, 2) or v0.shape[-1:] != (2,):
+    if B.shape != (2, 2) or v0.shape != (2,):  # one contact per call: `jax.vmap` for many
         raise ValueError(f"B must have shape (2, 2) and v0 shape (2,); got {B.shape} and {v0.shape}")
+    for name, value in (("friction", mu), ("restitution", e)):
+        if value.shape != ():
+            raise ValueError(f"{name} must be one number (shape ()); got shape {value.shape}; for many contacts, "
+                             "jax.vmap routh_impulse")
     if is_concrete(B, v0, mu, e):
         _check_eagerly(B, v0, mu, e)
     return _routh(B, v0, mu, e, law)

@@ -13,6 +13,8 @@ import math
 import jax
 import jax.numpy as jnp
 
+from ._compile import is_quick
+
 # Cephes sin.c: minimax polynomials on [-pi/4, pi/4] and pi/4 split so that j * _PI4[0] is exact for j < 2^29.
 _SIN = (1.58962301576546568060e-10, -2.50507477628578072866e-8, 2.75573136213857245213e-6,
         -1.98412698295895385996e-4, 8.33333333332211858878e-3, -1.66666666666666307295e-1)
@@ -29,9 +31,16 @@ def _horner(coeffs, z):
     return out
 
 
-@jax.custom_jvp
 def sincos(x):
-    """(sin x, cos x) elementwise, for real floating x."""
+    """(sin x, cos x) elementwise, for real floating x. In programs compiled for latency
+    (`_compile.quick_programs`) XLA's own `sin` and `cos`, which make a smaller program."""
+    if is_quick():
+        return jnp.sin(x), jnp.cos(x)
+    return _sincos(x)
+
+
+@jax.custom_jvp
+def _sincos(x):
     x = jnp.asarray(x)
     j = jnp.round(x * (2 / math.pi))  # x = j pi/2 + r with |r| <= pi/4
     r = x
@@ -46,10 +55,10 @@ def sincos(x):
     return sin, cos
 
 
-@sincos.defjvp
+@_sincos.defjvp
 def _sincos_jvp(primals, tangents):
     (x,), (dx,) = primals, tangents
-    s, c = sincos(x)
+    s, c = _sincos(x)
     return (s, c), (c * dx, -s * dx)
 
 

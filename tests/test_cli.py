@@ -94,7 +94,7 @@ def test_programs_compile_with_classic_emitters_only_where_jax_allows_and_the_us
         x = jnp.asarray(0.3)
         value, slope = np.sin(0.6) ** 2, 4 * np.sin(0.6) * np.cos(0.6)
         np.testing.assert_allclose(float(f(x)), value, rtol=1e-14)
-        assert plain_calls == [] and f._fast is not plain  # on its own: the program with the option
+        assert plain_calls == [] and f._fast[False] is not plain  # on its own: the program with the option
         np.testing.assert_allclose(float(jax.jit(f)(x)), value, rtol=1e-14)
         np.testing.assert_allclose(float(jax.grad(f)(x)), slope, rtol=1e-14)
         np.testing.assert_allclose(float(jax.jit(jax.grad(f))(x)), slope, rtol=1e-14)
@@ -119,6 +119,75 @@ def test_programs_compile_with_classic_emitters_only_where_jax_allows_and_the_us
     finally:
         monkeypatch.undo()
         _compile.compiler_options.cache_clear()
+
+
+def test_quick_programs_are_smaller_and_give_the_same_numbers(tmp_path, monkeypatch):
+    """Under `quick_programs` (the CLI's single drop) a program is traced with XLA's own sine and cosine, not the
+    polynomial ones, and compiled without LLVM's optimisation passes: a third fewer operations in the drop's
+    program, the same peaks to 1e-12. Kept programs keep the two kinds apart; outside the block, the usual one."""
+    import random
+
+    import jax
+    import numpy as np
+
+    import beamdrop_jax as bd
+    from beamdrop_jax import _compile, _simulate, _trig
+
+    def primitives(fun, *args):  # traced anew (a fresh function: no trace cache); inner programs' too
+        def walk(jaxpr):
+            for eqn in jaxpr.eqns:
+                inner = [getattr(v, "jaxpr", v) for p in eqn.params.values() for v in (p if isinstance(p, tuple)
+                                                                                       else (p,))]
+                inner = [v for v in inner if isinstance(v, jax.extend.core.Jaxpr)]
+                yield from (name for j in inner for name in walk(j)) if inner else (eqn.primitive.name,)
+
+        return list(walk(jax.make_jaxpr(lambda *a: fun(*a))(*args).jaxpr))
+
+    scene, numerics = bd.Scene.default(), bd.Numerics(n_modes=5)
+    usual = bd.simulate(scene, numerics)
+    usual_size = len(primitives(lambda s: _simulate._simulate(s, numerics), scene))
+    assert "sin" not in primitives(_trig.sincos, 0.3)
+    with _compile.quick_programs():
+        assert primitives(_trig.sincos, 0.3) == ["sin", "cos"]
+        assert len(primitives(lambda s: _simulate._simulate(s, numerics), scene)) < 0.75 * usual_size
+        quick = bd.simulate(scene, numerics)
+        with _compile.quick_programs(False):  # the innermost block decides
+            assert "sin" not in primitives(_trig.sincos, 0.3)
+    assert not _compile.is_quick() and True in _simulate._simulate_jit._fast
+    for get in (lambda r: r.peak.stress, lambda r: r.peak.x, lambda r: r.peak.t, lambda r: r.peak.deflection,
+                lambda r: r.error_estimate, lambda r: r.impulse.P):
+        np.testing.assert_allclose(np.asarray(get(quick)), np.asarray(get(usual)), rtol=1e-12, atol=0)
+    monkeypatch.setenv("XLA_FLAGS", "")  # a user's process (the test run sets the level itself)
+    _compile.compiler_options.cache_clear()
+    try:
+        assert _compile.compiler_options(quick=True) == {"xla_cpu_use_fusion_emitters": False,
+                                                          "xla_backend_optimization_level": 0}
+    finally:
+        monkeypatch.undo()
+        _compile.compiler_options.cache_clear()
+    # A tolerance of this run only: programs JAX's compilation cache (shared by the test runs) has never seen.
+    numerics = bd.Numerics(n_modes=5, convergence_rtol=1e-3 * (1 + random.random()))
+    folder = tmp_path / "programs"
+    with _compile.keep_programs(folder):
+        bd.simulate(scene, numerics)
+        with _compile.quick_programs():
+            kept_quick = bd.simulate(scene, numerics)
+    assert len(list(folder.iterdir())) == 2
+    np.testing.assert_allclose(float(kept_quick.peak.stress), float(usual.peak.stress), rtol=1e-12)
+
+
+def test_the_command_flushes_its_output_and_stops_quietly_when_the_reader_goes(tmp_path):
+    """`beamdrop` (`cli.run`) ends without Python's teardown: its output arrives whole first; a reader that goes
+    away early (`beamdrop drop | head`) ends it without a traceback."""
+    command = [sys.executable, "-m", "beamdrop_jax.cli", "drop", "--no-plots", "--n-modes", "4"]
+    done = subprocess.run(command + ["--json"], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout)
+    assert report["n_modes"] == 4 and report["peak_stress_MPa"] > 0
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path)
+    proc.stdout.close()  # the reader is gone before the first line
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode in (0, 1) and b"Traceback" not in err and b"BrokenPipe" not in err, err.decode()
 
 
 def test_kept_programs_skip_tracing_and_give_the_same_numbers(tmp_path, monkeypatch):

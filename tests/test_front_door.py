@@ -263,6 +263,9 @@ def test_impact_law_checks_its_inputs_eagerly_and_flags_them_under_jit():
         ((B, (0.0, -1.0), -0.1, 0.5), "friction"),
         ((B, (0.0, -1.0), 0.3, 1.5), "restitution"),
         ((B, (0.0, -1.0), True, 0.5), "friction"),
+        ((B, (0.0, -1.0), [0.3, 0.6], 0.5), "friction must be one number"),
+        ((B, (0.0, -1.0), 0.3, [[0.5]]), "restitution must be one number"),
+        (([B, B], (0.0, -1.0), 0.3, 0.5), r"B must have shape \(2, 2\)"),
     ]
     for args, word in cases:
         with pytest.raises(ValueError, match=word):
