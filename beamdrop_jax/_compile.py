@@ -207,8 +207,8 @@ class _Compiled:
     def __init__(self, make, fun, jit_kwargs, dot_fusions_only=False):
         self._make, self._fun, self._jit_kwargs = make, fun, jit_kwargs
         self._dot_fusions_only = dot_fusions_only
-        self._plain = make(fun, **jit_kwargs)
-        self._fast = {}  # quick (`is_quick`) -> the program with options, made on the first call
+        self._programs = {}  # (quick, called on its own) -> program, made on the first such call
+        self._quick_fun = None
         self._loaded = {}  # key -> (executable on the array leaves, output template)
         # `jax.jit` traces Python numbers, which a kept program would fix as constants: Equinox's programs only.
         self._keepable = make is _filter_jit() and inspect.isfunction(fun) and "<" not in fun.__qualname__
@@ -216,6 +216,7 @@ class _Compiled:
         functools.update_wrapper(self, fun)
 
     def __call__(self, *args, **kwargs):
+        quick = is_quick()
         # Traced arguments (grad, vmap, an enclosing jit) stage the program into another: no options there.
         if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((args, kwargs))):
             try:
@@ -223,16 +224,28 @@ class _Compiled:
                     out = self._call_kept(*_folders[-1], args, kwargs)
                     if out is not None:
                         return out
-                quick = is_quick()
-                if quick not in self._fast:
-                    options = compiler_options(self._dot_fusions_only, quick)
-                    self._fast[quick] = self._plain if options is None else self._make(
-                        self._fun, compiler_options=options, **self._jit_kwargs)
-                return self._fast[quick](*args, **kwargs)
+                return self._program(quick, True)(*args, **kwargs)
             except ValueError as error:
                 if "compiler_options" not in str(error):
                     raise
-        return self._plain(*args, **kwargs)
+        return self._program(quick, False)(*args, **kwargs)
+
+    def _program(self, quick: bool, on_its_own: bool):
+        """The jitted function for a call in or out of `quick_programs`, on its own (with the compile options) or
+        traced into another program. Quick programs jit a twin of the function: JAX caches traces by function, and
+        a quick trace (XLA's sine) must not be reused outside the block, nor the usual one inside."""
+        key = (quick, on_its_own)
+        if key not in self._programs:
+            options = compiler_options(self._dot_fusions_only, quick) if on_its_own else None
+            if on_its_own and options is None:
+                self._programs[key] = self._program(quick, False)
+            else:
+                if quick and self._quick_fun is None:
+                    self._quick_fun = functools.wraps(self._fun)(lambda *a, **k: self._fun(*a, **k))
+                fun = self._quick_fun if quick else self._fun
+                extra = {} if options is None else {"compiler_options": options}
+                self._programs[key] = self._make(fun, **self._jit_kwargs, **extra)
+        return self._programs[key]
 
     def _call_kept(self, folder: Path, used: list[str], args, kwargs):
         """The call through a kept program (loaded, or compiled and kept now); None where it cannot be kept."""

@@ -7,18 +7,21 @@ e2 = (-sin theta, cos theta). r = G - S is the centre of mass seen from the stri
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._checks import GRAVITY, Flag, combine, flag_if, is_concrete
+from ._checks import GRAVITY, Flag, array_module, combine, flag_if, is_concrete
+from ._compile import filter_jit
 from ._impact import ImpactMode, ImpactResult, routh_impulse
 from ._scene import Scene, board_ends
 from ._trig import sincos
 
 
 def body_axes(orientation) -> Float[Array, "2 2"]:
-    """Rows e1, e2 of the housing's body axes in the ground frame."""
-    s, c = sincos(orientation)
-    return jnp.stack([jnp.stack([c, s]), jnp.stack([-s, c])])
+    """Rows e1, e2 of the housing's body axes in the ground frame (NumPy's for a NumPy or Python number)."""
+    xp = array_module(orientation)  # NumPy in plots: no program to compile
+    s, c = sincos(orientation) if xp is jnp else (np.sin(orientation), np.cos(orientation))
+    return xp.stack([xp.stack([c, s]), xp.stack([-s, c])])
 
 
 def _in_ground(q, s, c):
@@ -110,12 +113,24 @@ def housing_impact(scene: Scene, law: str = "poisson") -> HousingImpact:
     single-contact law: `Flag.FLAT_LANDING_WITH_MOTION`. A separating contact (C0 >= 0, e.g. a zero drop height)
     gets `Flag.SEPARATING_CONTACT`.
     """
+    if is_concrete(scene):  # one compiled program, not one per operation; a flagged impact is redone eagerly
+        hit = _housing_impact_program(scene, law)
+        if not int(hit.flags):
+            return hit
+    hit = _housing_impact(scene, law)
     d = scene.drop
-    velocity = jnp.stack([d.horizontal_speed, -jnp.sqrt(2.0 * GRAVITY * jnp.maximum(d.height, 0.0))])
-    hit = corner_impact(scene.housing, scene.contact, d.orientation, velocity, d.spin, law=law)
     moving = (d.spin != 0) | (d.horizontal_speed != 0)
     _raise_outside_law(scene, hit.flat & moving, ~(hit.v0[1] < 0), hit.v0)
     return hit
+
+
+def _housing_impact(scene: Scene, law: str) -> HousingImpact:
+    d = scene.drop
+    velocity = jnp.stack([d.horizontal_speed, -jnp.sqrt(2.0 * GRAVITY * jnp.maximum(d.height, 0.0))])
+    return corner_impact(scene.housing, scene.contact, d.orientation, velocity, d.spin, law=law)
+
+
+_housing_impact_program = filter_jit(_housing_impact)
 
 
 def corner_impact(housing, contact, orientation, velocity, spin, law: str = "poisson") -> HousingImpact:
@@ -182,8 +197,17 @@ def support_jumps(scene: Scene, hit: HousingImpact, orientation=None) -> Float[A
     """Normal velocity jumps (dvA, dvB) of the board's ends, m/s, positive along the board normal n = z x t, for
     the housing at `orientation` (default: the drop's) when `hit` strikes."""
     orientation = scene.drop.orientation if orientation is None else orientation
+    if is_concrete(scene, hit, orientation):  # one compiled program, not one per operation
+        return _support_jumps_program(scene, hit, jnp.asarray(orientation))  # an array: not a static argument
+    return _support_jumps(scene, hit, orientation)
+
+
+def _support_jumps(scene: Scene, hit: HousingImpact, orientation) -> Float[Array, "2"]:
     ends = board_ends(scene.placement, scene.board.length)
     dv = hit.point_velocity_jump(orientation, ends)
     phi = scene.placement.angle
     t = _in_ground(jnp.stack(sincos(phi)[::-1]), *sincos(orientation))
     return dv[..., 1] * t[0] - dv[..., 0] * t[1]  # along n = z x t = (-t_y, t_x)
+
+
+_support_jumps_program = filter_jit(_support_jumps)

@@ -24,7 +24,7 @@ def plot_impact(B, v0, friction, restitution, law: str = "poisson", *, ax=None, 
     S0, C0 = np.asarray(v0, float)
     B1, B2, B3 = B[0, 0], B[1, 1], -B[0, 1]
     mu = float(friction)
-    path = np.asarray(res.path)
+    path, P = np.asarray(res.path), np.asarray(res.P)  # NumPy: indexing a JAX array compiles a program
     fig, ax = _axes(ax)
     top = 1.25 * max(float(path[:, 1].max()), 1e-12)
     pn = np.linspace(0.0, top, 2)
@@ -36,9 +36,9 @@ def plot_impact(B, v0, friction, restitution, law: str = "poisson", *, ax=None, 
     ax.plot((B3 * pn - S0) / B1, pn, "--", color="tab:green", label="stick line S = 0")
     pt = np.linspace(-span, span, 2)
     ax.plot(pt, (B3 * pt - C0) / B2, "--", color="tab:blue", label="max compression C = 0")
-    ax.axhline(float(res.P[1]), color="tab:red", lw=0.8, ls=":", label=f"termination ({law})")
+    ax.axhline(P[1], color="tab:red", lw=0.8, ls=":", label=f"termination ({law})")
     ax.plot(path[:, 0], path[:, 1], "-o", color="k", ms=4, lw=2, label="impulse path")
-    ax.plot([float(res.P[0])], [float(res.P[1])], "*", color="tab:red", ms=12)
+    ax.plot([P[0]], [P[1]], "*", color="tab:red", ms=12)
     pn_c = float(res.Pn_compression)
     ax.plot([np.interp(pn_c, path[:, 1], path[:, 0])], [pn_c], "D", color="tab:blue", ms=6, label="max compression")
     ax.set_xlim(-span, span)
@@ -46,7 +46,7 @@ def plot_impact(B, v0, friction, restitution, law: str = "poisson", *, ax=None, 
     ax.set_xlabel("tangential impulse $P_t$ (N s)")
     ax.set_ylabel("normal impulse $P_n$ (N s)")
     mode = ImpactMode(int(res.mode)).label
-    ax.set_title(title or f"Impact process: {mode}; P = ({float(res.P[0]):.4g}, {float(res.P[1]):.4g}) N s")
+    ax.set_title(title or f"Impact process: {mode}; P = ({P[0]:.4g}, {P[1]:.4g}) N s")
     ax.legend(loc="lower left", fontsize=8)
     return fig
 
@@ -108,7 +108,7 @@ def plot_deflected_board(fields, response, *, thickness=None, ax=None):
                                (float(peak.t), "tab:red", "peak stress")):
         j = int(np.abs(np.asarray(fields.t) - when).argmin())
         shapes[what] = np.asarray(fields.deflection)[:, j] * 1e3
-        ax.plot(x_mm, shapes[what], color=colour, lw=2, label=f"shape at {what}, t = {float(fields.t[j]) * 1e3:.3f} ms")
+        ax.plot(x_mm, shapes[what], color=colour, lw=2, label=f"shape at {what}, t = {np.asarray(fields.t)[j] * 1e3:.3f} ms")
     xd = float(peak.deflection_x) * 1e3
     ax.plot(xd, np.interp(xd, x_mm, shapes["peak deflection"]), "o", color="tab:blue",
             label=f"peak deflection {float(peak.deflection) * 1e3:.3g} mm at x = {xd:.1f} mm")
@@ -134,14 +134,16 @@ def plot_scene(scene, response=None, *, ax=None):
     ground's impulse at S (from `response`, or computed)."""
     from matplotlib.patches import Polygon
 
-    from ._kinematics import body_axes, housing_impact, lowest_corner
+    from ._checks import on_host
+    from ._kinematics import body_axes, housing_impact
     from ._scene import board_ends
 
     fig, ax = _axes(ax, (8.0, 5.2))
     th = float(scene.drop.orientation)
-    e1, e2 = np.asarray(body_axes(th))
+    e1, e2 = body_axes(th)
     W, H = float(scene.housing.width), float(scene.housing.height)
-    corner, r, _ = (np.asarray(v) for v in lowest_corner(scene))
+    hit = response.housing if response is not None and response.housing is not None else housing_impact(scene)
+    r = np.asarray(hit.r)
     G = np.array([0.0, 0.0]) + r  # ground frame with the striking corner S at the origin
 
     def ground(q):
@@ -150,7 +152,7 @@ def plot_scene(scene, response=None, *, ax=None):
 
     box = ground(np.array([[W / 2, H / 2], [-W / 2, H / 2], [-W / 2, -H / 2], [W / 2, -H / 2]]))
     ax.add_patch(Polygon(box, closed=True, fc="0.93", ec="0.25", lw=1.5, label="housing (rigid)"))
-    ends = ground(np.asarray(board_ends(scene.placement, scene.board.length)))
+    ends = ground(board_ends(on_host(scene.placement), float(scene.board.length)))
     ax.plot(ends[:, 0], ends[:, 1], color="tab:green", lw=4, solid_capstyle="butt", label="board")
     ax.plot(ends[:, 0], ends[:, 1], "^", color="tab:green", mec="k", ms=10, label="supports (pinned)")
     ax.annotate("A", ends[0], xytext=(-12, 6), textcoords="offset points", fontsize=11, weight="bold")
@@ -162,7 +164,6 @@ def plot_scene(scene, response=None, *, ax=None):
     size = 1e3 * max(W, H)
     lo_x, hi_x = min(box[:, 0].min(), 0) - 0.15 * size, max(box[:, 0].max(), 0) + 0.15 * size
     ax.fill_between([lo_x, hi_x], [-0.06 * size] * 2, [0, 0], color="0.55", hatch="///", alpha=0.5, lw=0)
-    hit = response.housing if response is not None and response.housing is not None else housing_impact(scene)
     v = np.array([float(scene.drop.horizontal_speed), -float(np.sqrt(2 * 9.80665 * float(scene.drop.height)))])
     speed = np.linalg.norm(v)
     if speed > 0:
@@ -229,11 +230,12 @@ def plot_impacts(scene, response):
 def _draw_housing(ax, scene, placement, **style):
     from matplotlib.patches import Rectangle
 
+    from ._checks import on_host
     from ._scene import board_ends
 
     W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
     ax.add_patch(Rectangle((-W / 2, -H / 2), W, H, fill=False, lw=1.5, color="0.3"))
-    ends = np.asarray(board_ends(placement, scene.board.length)) * 1e3
+    ends = board_ends(on_host(placement), float(scene.board.length)) * 1e3
     ax.plot(ends[:, 0], ends[:, 1], **style)
 
 

@@ -17,6 +17,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._beam import ENDS, EULER_LOAD
+from ._compile import filter_jit
 from ._checks import (DEG, Flag, Range, array_module, as_float, combine, flag_if, is_concrete, on_host,
                       raise_if_flagged, require)
 
@@ -361,10 +362,14 @@ def require_single(scene: Scene, what: str) -> None:
 def check_scene(scene: Scene) -> None:
     """Raise `ValueError` naming the field, its value and the valid range if a concrete scene (or batch of scenes)
     has any flagged problem (no-op under tracing)."""
-    flags = scene_flags(scene)
-    if not is_concrete(flags) or not np.any(np.asarray(flags)):
+    if not is_concrete(scene):
+        return
+    if not np.any(np.asarray(_scene_flags_program(scene))):  # one compiled program, not one per operation
         return
     for section in SECTIONS:
         getattr(scene, section).__check_init__()
     _check_fits(scene)
     raise_if_flagged(flags, "invalid scene")
+
+
+_scene_flags_program = filter_jit(scene_flags)

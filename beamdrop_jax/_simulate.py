@@ -994,7 +994,7 @@ def response_fields(scene: Scene, numerics: Numerics | None = None, nx: int = 10
     response = simulate(scene, numerics)
     length = float(scene.board.length)
     if x is None:
-        x = jnp.linspace(0.0, 1.0, nx) * scene.board.length
+        x = as_float(np.linspace(0.0, 1.0, nx) * length, "x")  # on the host: no program to compile
     else:
         x = as_float(x, "x", f"positions on the board, [0, {length:g}] m").reshape(-1)
         require(x, "x", 0.0, length, unit="m")

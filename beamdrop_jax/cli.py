@@ -176,12 +176,14 @@ def _numerics(args, **overrides):
 
 
 def cmd_impact(args, output):
+    import numpy as np
+
     import beamdrop_jax as bd
 
     scene = _scene(args)
     hit = bd.housing_impact(scene, law=args.law)
     summary = {
-        "striking_corner_from_G_mm": hit.corner * 1e3,
+        "striking_corner_from_G_mm": np.asarray(hit.corner) * 1e3,
         "approach_velocity_m_per_s": hit.v0,
         **hit.impact.summary(),
         "centre_of_mass_velocity_jump_m_per_s": hit.dv_G,
@@ -521,7 +523,7 @@ def _parse(argv) -> argparse.Namespace:
 
 
 # Commands whose programs run for milliseconds: compiled for latency (`_compile.quick_programs`).
-QUICK_COMMANDS = ("drop", "sensitivity")
+QUICK_COMMANDS = ("drop", "sensitivity", "impact", "campaign")
 CACHE_MAX_BYTES = 1 << 30  # the least recently used programs go beyond this (older package versions' first)
 
 
@@ -640,7 +642,9 @@ def main(argv=None) -> int:
                 record.parent.mkdir(parents=True, exist_ok=True)
                 record.write_text(json.dumps(used))
     if args.json:
-        print(json.dumps(output.report, indent=1, allow_nan=False))
+        from ._report import plain
+
+        print(json.dumps(plain(output.report), indent=1, allow_nan=False))  # NaN (a drop not modelled): null
     return 0
 
 

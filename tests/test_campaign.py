@@ -96,3 +96,16 @@ def test_bad_campaign_input_is_named():
         bd.campaign_drops(scene, "mil-std-810h-516-iv", mass=60.0)
     with pytest.raises(ValueError, match="height"):
         bd.campaign_drops(scene, "iec-60068-2-31", height=-1.0)
+
+
+def test_json_reports_drops_outside_the_plane_as_null(tmp_path, capsys):
+    import json
+
+    scene = bd.Scene.default()
+    args = ["campaign", "--standard", "mil-std-810h-516-iv", "--json", "--no-plots", "--out", str(tmp_path)]
+    assert main(args) == 0
+    drops = {d["label"]: d for d in json.loads(capsys.readouterr().out)["drops"]}
+    assert drops["face 5"]["peak_stress_MPa"] is None and drops["face 6"]["peak_strain_microstrain"] is None
+    v = math.sqrt(2 * G * 1.22)
+    want = translation_peak(scene, (1 + float(scene.contact.restitution)) * v) / 1e6
+    np.testing.assert_allclose(drops["face 3"]["peak_stress_MPa"], want, rtol=1e-9)

@@ -89,12 +89,12 @@ def test_programs_compile_with_classic_emitters_only_where_jax_allows_and_the_us
         assert _compile.compiler_options() == {"xla_cpu_use_fusion_emitters": False}
         f = _compile.filter_jit(lambda x: jnp.sin(2 * x) ** 2)
         plain_calls = []
-        plain = f._plain
-        f._plain = lambda *a: plain_calls.append(1) or plain(*a)
+        plain = f._program(False, False)
+        f._programs[False, False] = lambda *a: plain_calls.append(1) or plain(*a)
         x = jnp.asarray(0.3)
         value, slope = np.sin(0.6) ** 2, 4 * np.sin(0.6) * np.cos(0.6)
         np.testing.assert_allclose(float(f(x)), value, rtol=1e-14)
-        assert plain_calls == [] and f._fast[False] is not plain  # on its own: the program with the option
+        assert plain_calls == [] and f._programs[False, True] is not plain  # on its own: the program with the option
         np.testing.assert_allclose(float(jax.jit(f)(x)), value, rtol=1e-14)
         np.testing.assert_allclose(float(jax.grad(f)(x)), slope, rtol=1e-14)
         np.testing.assert_allclose(float(jax.jit(jax.grad(f))(x)), slope, rtol=1e-14)
@@ -153,7 +153,14 @@ def test_quick_programs_are_smaller_and_give_the_same_numbers(tmp_path, monkeypa
         quick = bd.simulate(scene, numerics)
         with _compile.quick_programs(False):  # the innermost block decides
             assert "sin" not in primitives(_trig.sincos, 0.3)
-    assert not _compile.is_quick() and True in _simulate._simulate_jit._fast
+    assert not _compile.is_quick() and (True, True) in _simulate._simulate_jit._programs
+    # Traced into another program (here `vmap`), a quick trace is not reused outside the block, nor the reverse.
+    first_sine = _compile.filter_jit(lambda x: _trig.sincos(x)[0])
+    with _compile.quick_programs():
+        assert "sin" in primitives(jax.vmap(first_sine), np.zeros(3))
+    assert "sin" not in primitives(jax.vmap(first_sine), np.zeros(3))
+    with _compile.quick_programs():
+        assert "sin" in primitives(jax.vmap(first_sine), np.zeros(3))
     for get in (lambda r: r.peak.stress, lambda r: r.peak.x, lambda r: r.peak.t, lambda r: r.peak.deflection,
                 lambda r: r.error_estimate, lambda r: r.impulse.P):
         np.testing.assert_allclose(np.asarray(get(quick)), np.asarray(get(usual)), rtol=1e-12, atol=0)
@@ -188,6 +195,30 @@ def test_the_command_flushes_its_output_and_stops_quietly_when_the_reader_goes(t
     proc.stdout.close()  # the reader is gone before the first line
     _, err = proc.communicate(timeout=300)
     assert proc.returncode in (0, 1) and b"Traceback" not in err and b"BrokenPipe" not in err, err.decode()
+
+
+def test_single_drop_commands_compile_a_few_programs_not_one_per_operation(tmp_path):
+    """JAX run eagerly compiles one program per operation (20 ms each): the commands' eager work (the impact, the
+    support jumps, the scene check, the figures' geometry) runs as one compiled program each or as NumPy. Counted
+    in a fresh process with the cache off (operation by operation, `beamdrop impact` alone compiles over 60)."""
+    script = """
+import sys, jax
+compiles = []
+jax.monitoring.register_event_duration_secs_listener(
+    lambda event, duration, **kw: compiles.append(1) if event == "/jax/core/compile/backend_compile_duration" else 0)
+from beamdrop_jax.cli import main
+for command in ("impact", "drop"):
+    before = len(compiles)
+    assert main([command, "--no-cache", "--out", sys.argv[1]]) == 0
+    print(command, len(compiles) - before, file=sys.stderr)
+"""
+    done = subprocess.run([sys.executable, "-c", script, str(tmp_path)], capture_output=True, text=True,
+                          timeout=300, env={**os.environ, "BEAMDROP_NO_CACHE": "1"})
+    assert done.returncode == 0, done.stderr
+    counts = dict(line.split() for line in done.stderr.splitlines() if line.startswith(("impact ", "drop ")))
+    # impact: the impact, the support jumps, the diagram's impulse path, the compile options' check; drop: its
+    # drop and its scene check (the rest is shared with impact).
+    assert int(counts["impact"]) <= 4 and int(counts["drop"]) <= 3, counts
 
 
 def test_kept_programs_skip_tracing_and_give_the_same_numbers(tmp_path, monkeypatch):
