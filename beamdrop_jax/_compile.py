@@ -3,9 +3,9 @@ emitters (`xla_cpu_use_fusion_emitters` off), which compile this package's progr
 run time (`beamdrop bench --latency`). A compile option of each program, not a global setting: the rest of the
 user's JAX is untouched, the option follows the programs through `grad` and `vmap`, and a user's own `jit` around
 them compiles with the user's options. Programs that ask for it (`filter_jit(dot_fusions_only=True)`) also use
-YNNPACK's library fusions for matrix products only. Within `quick_programs` (the CLI's single-drop commands)
-programs compile for latency instead: smaller and without LLVM's optimisation passes. An `XLA_FLAGS` that sets an
-option wins; a jaxlib that does not know an option compiles as usual.
+YNNPACK's library fusions for matrix products only. Within `quick_programs` (the CLI's commands that run for
+milliseconds) programs compile for latency instead: smaller and without LLVM's optimisation passes. An `XLA_FLAGS`
+that sets an option wins; a jaxlib that does not know an option compiles as usual.
 
 `keep_programs(folder)` (the CLI's cache) keeps each compiled program as a serialised executable, so a later process
 with the same package, libraries, machine, arguments' structure and shapes loads it without tracing, lowering or
