@@ -99,6 +99,11 @@ def drop_set(scene: Scene, orientations, heights=None) -> Scene:
     """A batch of scenes: every orientation (rad) with every height (m; default the scene's)."""
     th = jnp.asarray(orientations, dtype=float_dtype()).reshape(-1)
     hs = jnp.asarray(scene.drop.height if heights is None else heights, dtype=float_dtype()).reshape(-1)
+    return _drop_grid(scene, th, hs)
+
+
+@filter_jit  # one program, not one per operation and field
+def _drop_grid(scene: Scene, th, hs) -> Scene:
     TH, HS = jnp.meshgrid(th, hs, indexing="ij")
     n = TH.size
     batch = jax.tree_util.tree_map(lambda v: jnp.broadcast_to(v, (n,) + jnp.shape(v)), scene)
@@ -147,13 +152,13 @@ class PlacementResult(eqx.Module):
         from ._report import plain
 
         def where(p, when):
-            return {f"{when}_centre_mm": p.centre * 1e3, f"{when}_angle_deg": jnp.degrees(p.angle)}
+            return {f"{when}_centre_mm": np.asarray(p.centre) * 1e3, f"{when}_angle_deg": np.degrees(p.angle)}
 
         out = {"objective": f"{self.objective} peak stress over {self.n_drops} drops"}
         if scene is not None:
             out |= where(scene.placement, "before")
-        out |= {"before_objective_MPa": self.initial_value / 1e6, **where(self.placement, "after"),
-                "after_objective_MPa": self.value / 1e6, "evaluations": self.n_evaluations}
+        out |= {"before_objective_MPa": np.asarray(self.initial_value) / 1e6, **where(self.placement, "after"),
+                "after_objective_MPa": np.asarray(self.value) / 1e6, "evaluations": self.n_evaluations}
         return plain(out)
 
     def __repr__(self) -> str:
@@ -202,43 +207,60 @@ def optimize_placement(
     n_drops = int(drops.drop.orientation.shape[0])
     _check_drops(drops, numerics)
     optimizer = _default_optimizer() if optimizer is None else optimizer
-    key = jax.random.PRNGKey(0) if key is None else key
-
-    u0 = unconstrained_from_placement(scene, scene.placement, margin)
-    others = jax.random.uniform(key, (starts - 1, 3), minval=-1.5, maxval=1.5)
-    U = jnp.concatenate([u0[None], others], axis=0)
-    state = jax.vmap(optimizer.init)(U)
     config = _traced_config(objective, alpha, numerics, margin)
-
+    # The steps between the compiled ones are small programs too: JAX run eagerly compiles one per operation.
+    U, state, best_u, best_v = _start(scene, key, starts, optimizer, config)
     history, path_u = [], [U]
-    best_u, best_v = U, jnp.full((starts,), jnp.inf)
     for _ in tqdm(range(steps), desc="optimize_placement", disable=not progress, leave=False):
         U_new, state, values = _step(U, state, scene, drops, optimizer, config)
-        improved = values < best_v
-        best_v = jnp.where(improved, values, best_v)
-        best_u = jnp.where(improved[:, None], U, best_u)
+        best_u, best_v = _keep_best(U, values, best_u, best_v)
         history.append(values)
         U = U_new
         path_u.append(U)
-    final = _values(U, scene, drops, config)
-    improved = final < best_v
-    best_v = jnp.where(improved, final, best_v)
-    best_u = jnp.where(improved[:, None], U, best_u)
-    winner = int(jnp.argmin(best_v))
-    histories = jnp.stack(history, axis=1)
-    to_params = jax.vmap(lambda u: _params(placement_from_unconstrained(scene, u, margin)))
-    path = to_params(jnp.stack([p[winner] for p in path_u]))
+    best_u, best_v = _keep_best(U, _values(U, scene, drops, config), best_u, best_v)
+    placement, value, initial, histories, winners, path = _finish(scene, best_u, best_v, history, path_u, config)
     return PlacementResult(
-        placement=placement_from_unconstrained(scene, best_u[winner], margin),
-        value=best_v[winner],
-        initial_value=histories[0, 0],
-        history=histories[winner],
+        placement=placement,
+        value=value,
+        initial_value=initial,
+        history=winners,
         histories=histories,
         path=path,
         n_evaluations=starts * (steps + 1),
         n_drops=n_drops,
         objective=objective,
     )
+
+
+@filter_jit
+def _start(scene, key, starts: int, optimizer, config):
+    """The starts' unconstrained variables (the scene's placement first), the optimiser's state, and the best so
+    far (none yet)."""
+    margin = config[-1]
+    key = jax.random.PRNGKey(0) if key is None else key
+    u0 = unconstrained_from_placement(scene, scene.placement, margin)
+    others = jax.random.uniform(key, (starts - 1, 3), minval=-1.5, maxval=1.5)
+    U = jnp.concatenate([u0[None], others], axis=0)
+    return U, jax.vmap(optimizer.init)(U), U, jnp.full((starts,), jnp.inf, u0.dtype)
+
+
+@filter_jit
+def _keep_best(U, values, best_u, best_v):
+    improved = values < best_v
+    return jnp.where(improved[:, None], U, best_u), jnp.where(improved, values, best_v)
+
+
+@filter_jit
+def _finish(scene, best_u, best_v, histories, path_u, config):
+    """`PlacementResult`'s arrays from the steps' values and variables (lists): the winning start's placement and
+    value, the first value, every start's history (starts, steps), the winner's, and the winner's path."""
+    margin = config[-1]
+    winner = jnp.argmin(best_v)
+    to_params = jax.vmap(lambda u: _params(placement_from_unconstrained(scene, u, margin)))
+    path = to_params(jnp.stack([u[winner] for u in path_u]))
+    histories = jnp.stack(histories, axis=1)
+    placement = placement_from_unconstrained(scene, best_u[winner], margin)
+    return placement, best_v[winner], histories[0, 0], histories, histories[winner], path
 
 
 
@@ -299,13 +321,13 @@ def placement_landscape(scene: Scene, result: PlacementResult, orientations=None
         orientations = np.radians(np.linspace(15.0, 75.0, 7))
     drops = drop_set(scene, orientations, heights)
     phi = result.placement.angle
-    W, H, L = scene.housing.width, scene.housing.height, scene.board.length
-    R1 = float(W / 2 - margin - L / 2 * jnp.abs(jnp.cos(phi)))
-    R2 = float(H / 2 - margin - L / 2 * jnp.abs(jnp.sin(phi)))
+    W, H, L, angle = (float(v) for v in (scene.housing.width, scene.housing.height, scene.board.length, phi))
+    R1 = W / 2 - margin - L / 2 * abs(math.cos(angle))
+    R2 = H / 2 - margin - L / 2 * abs(math.sin(angle))
     c1 = np.linspace(-R1, R1, n[0])
     c2 = np.linspace(-R2, R2, n[1])
     C1, C2 = np.meshgrid(c1, c2, indexing="ij")
-    centres = jnp.stack([C1.ravel(), C2.ravel()], axis=-1)
+    centres = jnp.asarray(np.stack([C1.ravel(), C2.ravel()], axis=-1), float_dtype())
     values = _landscape(centres, phi, drops, _traced_config(result.objective, alpha, numerics))
     return c1, c2, np.asarray(values).reshape(C1.shape)
 
