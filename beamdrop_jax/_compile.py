@@ -107,8 +107,24 @@ def keep_programs(folder):
         _folders.pop()
 
 
+@functools.cache
+def _initialise_lapack() -> None:
+    """Point jaxlib's LAPACK kernels at their routines, as lowering `eigh` or `solve` does in a process that
+    compiles: a kept program that calls them (every plate program: `eigh`) loads without lowering, and without
+    this its first call jumps to an unset routine (a segmentation fault)."""
+    try:
+        from jaxlib import lapack
+
+        lapack._lapack.initialize()
+    except (ImportError, AttributeError):  # another jaxlib layout: lower a small `eigh`, which initialises it
+        import jax.numpy as jnp
+
+        jax.jit(jnp.linalg.eigh).lower(np.eye(2))
+
+
 def _deserialise(data: bytes):
     """A kept program's file contents -> (executable, pickled output template)."""
+    _initialise_lapack()
     payload, in_tree, out_tree, template = pickle.loads(data)
     return serialize_executable.deserialize_and_load(payload, in_tree, out_tree), template
 
