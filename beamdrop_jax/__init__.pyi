@@ -1,9 +1,10 @@
 """The public names of beamdrop_jax. The package imports each private module on first use of one of its names
 (`lazy_loader` reads this file), so `import beamdrop_jax` costs little more than importing JAX."""
 
-from ._checks import Flag as Flag, GRAVITY as GRAVITY
-from ._scene import (
-    Board as Board,
+from ._common.checks import Flag as Flag, GRAVITY as GRAVITY
+from ._board.base import AbstractBoard as AbstractBoard, AbstractModal as AbstractModal
+from ._board.beam import Board as Board
+from ._scene.containers import (
     Contact as Contact,
     Drop as Drop,
     Housing as Housing,
@@ -13,9 +14,9 @@ from ._scene import (
     check_scene as check_scene,
     scene_flags as scene_flags,
 )
-from ._scenefile import embedded_scenes as embedded_scenes, load_scene as load_scene, save_scene as save_scene
-from ._impact import ImpactMode as ImpactMode, ImpactResult as ImpactResult, routh_impulse as routh_impulse
-from ._kinematics import (
+from ._scene.file import embedded_scenes as embedded_scenes, load_scene as load_scene, save_scene as save_scene
+from ._impact.routh import ImpactMode as ImpactMode, ImpactResult as ImpactResult, routh_impulse as routh_impulse
+from ._impact.kinematics import (
     HousingImpact as HousingImpact,
     approach_velocity as approach_velocity,
     body_axes as body_axes,
@@ -25,21 +26,22 @@ from ._kinematics import (
     lowest_corner as lowest_corner,
     support_jumps as support_jumps,
 )
-from ._clatter import (
+from ._impact.clatter import (
     Ending as Ending,
     Impacts as Impacts,
     corner_heights as corner_heights,
     impact_sequence as impact_sequence,
     next_contact as next_contact,
 )
-from ._motion import HalfSine as HalfSine, Impulse as Impulse, PulseTrain as PulseTrain, Record as Record
-from ._motion import JESD22_B111_CONDITION_B as JESD22_B111_CONDITION_B
-from ._beam import ENDS as ENDS, natural_frequencies as natural_frequencies
-from ._mounts import MountResult as MountResult, optimize_mounts as optimize_mounts
-from ._plate import EDGE_CODES as EDGE_CODES, Plate as Plate, PlateModes as PlateModes, plate_modes as plate_modes
-from ._board import unit_response as unit_response
-from ._peaks import FieldPeak as FieldPeak
-from ._simulate import (
+from ._impact.motion import HalfSine as HalfSine, Impulse as Impulse, PulseTrain as PulseTrain, Record as Record
+from ._impact.motion import JESD22_B111_CONDITION_B as JESD22_B111_CONDITION_B
+from ._board.beam import ENDS as ENDS
+from ._board.base import natural_frequencies as natural_frequencies
+from ._studies.mounts import MountResult as MountResult, optimize_mounts as optimize_mounts
+from ._board.plate import EDGE_CODES as EDGE_CODES, Plate as Plate, PlateModes as PlateModes, plate_modes as plate_modes
+from ._response.pulses import unit_response as unit_response
+from ._board.search import FieldPeak as FieldPeak
+from ._response.simulate import (
     Fields as Fields,
     Gauges as Gauges,
     Numerics as Numerics,
@@ -57,7 +59,7 @@ from ._simulate import (
     simulate as simulate,
     support_motion as support_motion,
 )
-from ._optimize import (
+from ._studies.placement import (
     PlacementResult as PlacementResult,
     drop_set as drop_set,
     optimize_placement as optimize_placement,
@@ -66,34 +68,34 @@ from ._optimize import (
     placement_objective as placement_objective,
     risk as risk,
 )
-from ._superposition import (
+from ._response.superposition import (
     PlateTable as PlateTable,
     SuperpositionTable as SuperpositionTable,
     superposition_table as superposition_table,
     table_numerics as table_numerics,
     table_peaks as table_peaks,
 )
-from ._montecarlo import (
+from ._studies.montecarlo import (
     DropDistribution as DropDistribution,
     MonteCarloResult as MonteCarloResult,
     montecarlo as montecarlo,
     montecarlo_numerics as montecarlo_numerics,
     wilson_interval as wilson_interval,
 )
-from ._sensitivity import (
+from ._studies.sensitivity import (
     Sensitivity as Sensitivity,
     scalar_fields as scalar_fields,
     sensitivities as sensitivities,
     smooth_peak_stress as smooth_peak_stress,
 )
-from ._campaign import (
+from ._studies.campaign import (
     STANDARDS as STANDARDS,
     CampaignDrop as CampaignDrop,
     CampaignResult as CampaignResult,
     campaign as campaign,
     campaign_drops as campaign_drops,
 )
-from ._opensees import (
+from ._peers.opensees import (
     FEResponse as FEResponse,
     PlateFEResponse as PlateFEResponse,
     opensees_board_response as opensees_board_response,

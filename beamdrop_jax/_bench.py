@@ -15,13 +15,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import GRAVITY
-from ._clatter import impact_sequence
-from ._montecarlo import DropDistribution, _evaluate, inner_batch, montecarlo, montecarlo_numerics, sample_axes
-from ._scene import Scene
-from ._simulate import Numerics
-from ._superposition import _batch_jumps, superposition_table, table_numerics
-from ._compile import jit
+from ._common.checks import GRAVITY
+from ._impact.clatter import impact_sequence
+from ._studies.montecarlo import DropDistribution, _evaluate, inner_batch, montecarlo, montecarlo_numerics, sample_axes
+from ._scene.containers import Scene
+from ._response.simulate import Numerics
+from ._response.superposition import _batch_jumps, superposition_table, table_numerics
+from ._common.compile import jit
 
 REFERENCE = Numerics(n_modes=32)
 
@@ -423,8 +423,8 @@ def plate_bench(repeats: int = 5, n_drops: int = 1 << 20) -> dict:
       8 Newton steps) over 256 drops."""
     import dataclasses
 
-    from ._scenefile import load_scene
-    from ._simulate import simulate
+    from ._scene.file import load_scene
+    from ._response.simulate import simulate
 
     plate, beam = load_scene("jesd22-board"), Scene.default()
     key = jax.random.PRNGKey(2026)
@@ -505,11 +505,12 @@ def stability_study(level: str = "quick", progress=True) -> dict:
     - `modes`: peak stress against mode count for the ideal impulse and half-sines of several durations;
     - `buckling`: first frequency and peak stress as the axial compression approaches the Euler load.
     """
-    from ._beam import natural_frequencies
-    from ._integrate import solve_modes
-    from ._motion import HalfSine
-    from ._scene import Board
-    from ._simulate import board_response
+    from ._board.base import natural_frequencies
+    from ._response.diffrax_path import solve_modes
+    from ._impact.motion import HalfSine
+    from ._board.beam import Board
+
+    from ._response.simulate import board_response
 
     tiny = level == "tiny"
     board = Board()

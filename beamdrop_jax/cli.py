@@ -120,7 +120,7 @@ class _Output:
         self.report.setdefault("files", []).append(str(path))
 
     def summary(self, summary: dict, title: str):
-        from ._report import plain, summary_text
+        from ._common.report import plain, summary_text
 
         self.report.update(plain(summary))
         self.say(summary_text(summary, title))
@@ -230,7 +230,7 @@ def cmd_drop(args, output):
         rows = [{"impact": i + 1, "t_ms": float(imp.t[i]) * 1e3, "corner_from_G_mm": np.asarray(imp.corner[i]) * 1e3,
                  "approach_speed_m_per_s": float(imp.approach_speed[i]), "impulse_Ns": np.asarray(imp.P[i]),
                  "support_jumps_m_per_s": np.asarray(imp.support_jumps[i])} for i in range(int(imp.count))]
-        from ._report import plain
+        from ._common.report import plain
 
         output.report["impacts_table"] = plain(rows)
         output.say(f"Impacts ({int(imp.count)} of at most {numerics.max_impacts}; ended: "
@@ -245,7 +245,7 @@ def cmd_drop(args, output):
         output.say(f"  note: {note}")
         output.report.setdefault("notes", []).append(note)
     if plate:
-        from ._report import summary_text, write_csv
+        from ._common.report import summary_text, write_csv
 
         g = res.gauges
         rows = [{"t_ms": float(t) * 1e3, **{f"gauge{i + 1}_microstrain": float(g.strain[i, j]) * 1e6
@@ -264,7 +264,7 @@ def cmd_drop(args, output):
         return
     if args.gauge is not None:
         fields = bd.response_fields(scene, numerics, x=[args.gauge * 1e-3], nt=2001)
-        from ._report import write_csv
+        from ._common.report import write_csv
 
         rows = [{"t_ms": t * 1e3, "strain_microstrain": e * 1e6, "stress_MPa": s * 1e-6}
                 for t, e, s in zip(np.asarray(fields.t), np.asarray(fields.strain[0]), np.asarray(fields.stress[0]))]
@@ -295,7 +295,7 @@ def cmd_campaign(args, output):
 
 def cmd_sensitivity(args, output):
     import beamdrop_jax as bd
-    from ._report import write_csv
+    from ._common.report import write_csv
 
     scene = _scene(args)
     numerics = _numerics(args)
@@ -320,7 +320,7 @@ def cmd_optimize(args, output):
     import numpy as np
 
     import beamdrop_jax as bd
-    from ._report import write_csv
+    from ._common.report import write_csv
 
     scene = _scene(args)
     orientations = np.radians(args.orientations)
@@ -347,7 +347,7 @@ def cmd_montecarlo(args, output):
     import numpy as np
 
     import beamdrop_jax as bd
-    from ._report import write_csv
+    from ._common.report import write_csv
 
     scene = _scene(args)
     numerics = bd.Numerics(n_modes=args.n_modes) if args.n_modes else None
@@ -410,7 +410,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"beamdrop {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    from ._scenefile import embedded_scenes
+    from ._scene.file import embedded_scenes
 
     scenes = ", ".join(embedded_scenes())
 
@@ -579,7 +579,7 @@ def _preload(record: Path | None):
         return (), None
     if not isinstance(names, list):
         return (), None
-    from ._compile import preload_programs
+    from ._common.compile import preload_programs
 
     return names, preload_programs(_cache_dir() / "programs", names)
 
@@ -588,7 +588,7 @@ def _bound_cache(stamp: Path) -> None:
     """Mark the run's settings as compiled; after a run that compiled, remove the cache's least recently used
     programs beyond `CACHE_MAX_BYTES` (the settings' stamps stay)."""
     if not stamp.exists():
-        from ._compile import prune_folder
+        from ._common.compile import prune_folder
 
         prune_folder(stamp.parent, CACHE_MAX_BYTES, keep=lambda path: path.name.startswith("compiled-"))
     stamp.touch()
@@ -624,7 +624,7 @@ def main(argv=None) -> int:
             if _writes_files(args):
                 _check_out(args)
             stamp = _setup_jax(args)
-            from ._compile import keep_programs, quick_programs
+            from ._common.compile import keep_programs, quick_programs
 
             keeping = keep_programs(_cache_dir() / "programs") if stamp is not None else contextlib.nullcontext([])
             with keeping as used, _figures_to_files(), quick_programs(args.command in QUICK_COMMANDS):
@@ -642,7 +642,7 @@ def main(argv=None) -> int:
                 record.parent.mkdir(parents=True, exist_ok=True)
                 record.write_text(json.dumps(used))
     if args.json:
-        from ._report import plain
+        from ._common.report import plain
 
         print(json.dumps(plain(output.report), indent=1, allow_nan=False))  # NaN (a drop not modelled): null
     return 0

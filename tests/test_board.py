@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import beamdrop_jax as bd
-from beamdrop_jax._integrate import solve_modes
+from beamdrop_jax._response.diffrax_path import solve_modes
 from references import beam_frequencies, duffing_backbone
 
 G = 9.80665

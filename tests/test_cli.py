@@ -81,7 +81,7 @@ def test_programs_compile_with_classic_emitters_only_where_jax_allows_and_the_us
     import jax.numpy as jnp
     import numpy as np
 
-    from beamdrop_jax import _compile
+    from beamdrop_jax._common import compile as _compile
 
     monkeypatch.setenv("XLA_FLAGS", "")  # a user's process (the test run sets the emitters itself)
     _compile.compiler_options.cache_clear()
@@ -131,7 +131,8 @@ def test_quick_programs_are_smaller_and_give_the_same_numbers(tmp_path, monkeypa
     import numpy as np
 
     import beamdrop_jax as bd
-    from beamdrop_jax import _compile, _simulate, _trig
+    from beamdrop_jax._common import compile as _compile, trig as _trig
+    from beamdrop_jax._response import simulate as _simulate
 
     def primitives(fun, *args):  # traced anew (a fresh function: no trace cache); inner programs' too
         def walk(jaxpr):
@@ -248,7 +249,8 @@ def test_kept_programs_skip_tracing_and_give_the_same_numbers(tmp_path, monkeypa
     import numpy as np
 
     import beamdrop_jax as bd
-    from beamdrop_jax import _compile, _simulate
+    from beamdrop_jax._common import compile as _compile
+    from beamdrop_jax._response import simulate as _simulate
 
     # A tolerance of this run only: a program JAX's compilation cache (shared by the test runs) has never seen.
     scene, numerics = bd.Scene.default(), bd.Numerics(n_modes=5, convergence_rtol=1e-3 * (1 + random.random()))
@@ -311,7 +313,8 @@ def test_cli_lists_the_programs_a_command_line_used_and_loads_them_ahead_next_ti
     """After a run with the cache, the programs it used are listed for its command line (and folder); the next run
     of that line starts loading them before it parses, and prints the same; another line, or no cache, lists
     nothing and loads nothing ahead."""
-    from beamdrop_jax import _compile, cli
+    from beamdrop_jax import cli
+    from beamdrop_jax._common import compile as _compile
 
     monkeypatch.setenv("BEAMDROP_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.chdir(tmp_path)
@@ -337,7 +340,8 @@ def test_cli_lists_the_programs_a_command_line_used_and_loads_them_ahead_next_ti
 def test_cache_keeps_its_size_by_removing_the_least_recently_used(tmp_path, monkeypatch):
     """`prune_folder` removes the oldest files first until the rest fit; the CLI prunes its cache after a run that
     compiled (no stamp yet for its settings), never the stamps, and not after a warm run."""
-    from beamdrop_jax import _compile, cli
+    from beamdrop_jax import cli
+    from beamdrop_jax._common import compile as _compile
 
     folder = tmp_path / "xla"
     (folder / "programs").mkdir(parents=True)

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 import beamdrop_jax as bd
-from beamdrop_jax import _scene
+from beamdrop_jax._scene import containers as _scene
 
 FIELDS = [f"{section}.{name}" for section, cls in _scene.SECTIONS.items() for name in cls.RANGES]
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from jax.test_util import check_grads
 
 import beamdrop_jax as bd
-import beamdrop_jax._impact  # noqa: F401 - `bd._impact` below, before any call has loaded it
+import beamdrop_jax._impact.routh  # noqa: F401 - `bd._impact` below, before any call has loaded it
 from references import darboux_keller, random_contact
 
 B_PUBLIC = np.array([[2.5, -1.5], [-1.5, 2.5]])
@@ -25,7 +25,7 @@ def random_cases():
     return cases, stacked
 
 
-@pytest.mark.parametrize("law", bd._impact.LAWS)
+@pytest.mark.parametrize("law", bd._impact.routh.LAWS)
 def test_against_darboux_keller(random_cases, law):
     cases, (B, v0, mu, e) = random_cases
     res = jax.jit(jax.vmap(lambda *a: bd.routh_impulse(*a, law=law)))(B, v0, mu, e)
@@ -157,9 +157,9 @@ _GRADS = {
     law: jax.jit(
         jax.grad(lambda B, v0, mu, e, law=law: jnp.sum(bd.routh_impulse(B, v0, mu, e, law=law).P), argnums=(0, 1, 2, 3))
     )
-    for law in bd._impact.LAWS
+    for law in bd._impact.routh.LAWS
 }
-_IMPULSES = {law: jax.jit(lambda B, v0, mu, e, law=law: bd.routh_impulse(B, v0, mu, e, law=law)) for law in bd._impact.LAWS}
+_IMPULSES = {law: jax.jit(lambda B, v0, mu, e, law=law: bd.routh_impulse(B, v0, mu, e, law=law)) for law in bd._impact.routh.LAWS}
 
 
 @settings(max_examples=500, deadline=None)
@@ -177,7 +177,7 @@ def test_energy_never_created_and_cone_respected(c, mu, e, law):
 
 
 @settings(max_examples=300, deadline=None)
-@given(contact, st.floats(0.0, 3.0), st.floats(0.0, 1.0), st.sampled_from(bd._impact.LAWS))
+@given(contact, st.floats(0.0, 3.0), st.floats(0.0, 1.0), st.sampled_from(bd._impact.routh.LAWS))
 def test_gradients_finite_everywhere(c, mu, e, law):
     B, v0 = c
     grads = _GRADS[law](jnp.asarray(B), jnp.asarray(v0), jnp.asarray(mu), jnp.asarray(e))
@@ -197,7 +197,7 @@ GENERIC = {
 }
 
 
-@pytest.mark.parametrize("law", bd._impact.LAWS)
+@pytest.mark.parametrize("law", bd._impact.routh.LAWS)
 @pytest.mark.parametrize("mode", list(GENERIC))
 def test_gradients_match_finite_differences(mode, law):
     B, v0, mu, e = GENERIC[mode]

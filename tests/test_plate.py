@@ -239,7 +239,7 @@ def test_jesd22_board_scene_through_the_cli_and_a_scene_file(tmp_path, capsys):
 
 
 def test_mount_optimiser_finds_what_a_grid_search_finds():
-    from beamdrop_jax._simulate import _simulate
+    from beamdrop_jax._response.simulate import _simulate
 
     mounts = np.array([(0.006, -0.0325), (0.126, -0.0325), (0.006, 0.0325), (0.126, 0.0325)])
     plate = bd.Plate(length=0.132, width=0.077, thickness=1e-3, youngs_modulus=24e9, density=1850.0,
@@ -354,8 +354,8 @@ def test_a_plate_needs_float64():
 
 
 def test_superposed_montecarlo_on_a_plate_matches_each_drops_own_search():
-    from beamdrop_jax._montecarlo import _evaluate, sample_axes
-    from beamdrop_jax._superposition import _build_plate, table_numerics
+    from beamdrop_jax._studies.montecarlo import _evaluate, sample_axes
+    from beamdrop_jax._response.superposition import _build_plate, table_numerics
 
     scene, _ = _screwed_scene()
     distribution = bd.DropDistribution(orientation=("uniform", 0.0, 2 * math.pi), height=("uniform", 0.3, 1.5),

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from beamdrop_jax._trig import cexp, sincos
+from beamdrop_jax._common.trig import cexp, sincos
 
 
 def test_sincos_matches_libm_to_an_ulp():

@@ -13,8 +13,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._motion import HalfSine
-from ._scene import Board
+from .._impact.motion import HalfSine
+from .._board.beam import Board
+
 
 
 def _opensees():
@@ -227,7 +228,7 @@ def opensees_plate_response(plate, motion: HalfSine | None, window: float, *, ga
     `motion=None`: the frequencies alone (`strain` empty, peaks NaN).
 
     The peer models an undamped plate; in-plane motion is held (it is uncoupled from bending in a flat plate)."""
-    from ._plate import Plate
+    from .._board.plate import Plate
 
     if not isinstance(plate, Plate):
         raise ValueError("opensees_plate_response takes a bd.Plate")

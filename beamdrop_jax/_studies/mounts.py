@@ -14,12 +14,12 @@ import numpy as np
 from jaxtyping import Array, Float
 from tqdm import tqdm
 
-from ._checks import float_dtype
-from ._optimize import OBJECTIVES, drop_set, risk
-from ._plate import Plate
-from ._scene import Scene, check_scene
-from ._simulate import Numerics, _gauge_points, _scene_peaks, _simulate
-from ._compile import filter_jit
+from .._common.checks import float_dtype
+from .placement import OBJECTIVES, drop_set, risk
+from .._board.plate import Plate
+from .._scene.containers import Scene, check_scene
+from .._response.simulate import Numerics, _gauge_points, _scene_peaks, _simulate
+from .._common.compile import filter_jit
 
 
 class MountResult(eqx.Module):
@@ -35,14 +35,14 @@ class MountResult(eqx.Module):
     objective: str = eqx.field(static=True)
 
     def summary(self) -> dict:
-        from ._report import plain
+        from .._common.report import plain
 
         return plain({"objective": f"{self.objective} peak strain over {self.n_drops} drops",
                       "before_microstrain": self.initial_value * 1e6, "after_microstrain": self.value * 1e6,
                       "mounts_mm": self.mounts * 1e3, "evaluations": self.n_evaluations})
 
     def __repr__(self) -> str:
-        from ._report import summary_text
+        from .._common.report import summary_text
 
         return summary_text(self.summary(), "MountResult")
 

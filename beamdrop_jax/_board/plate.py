@@ -24,6 +24,7 @@ largest magnitude is (h/2) (|c| + r); the largest principal plane stress is E (h
 """
 
 import functools
+from typing import ClassVar
 import math
 
 import equinox as eqx
@@ -32,7 +33,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import Flag, Range, combine, float_dtype, flag_if, is_concrete
+from .._common.checks import Flag, Range, as_float, combine, float_dtype, flag_if, is_concrete
+from .._common.fields import check_ranges, init_fields, positive, range_flags
+from .base import AbstractBoard, AbstractModal
 
 EDGE_CODES = {"F": 0, "S": 1, "C": 2}  # the power of the distance to the edge in the Ritz basis
 """Edge conditions in Leissa's letters: free, simply supported, clamped."""
@@ -144,7 +147,7 @@ def _eigh_jvp(primals, tangents):
     return (lam, V), (jnp.diagonal(VdAV), V @ (F * VdAV))
 
 
-class Plate(eqx.Module):
+class Plate(AbstractBoard):
     """Kirchhoff plate board (SI units): `length` along the board from end A to end B (in the plane of motion),
     `width` across it, `thickness`; `edges` the conditions of the edges x = 0, y = -W/2, x = L, y = +W/2 in
     Leissa's letters (S supported, C clamped, F free; "SFSF": held at both ends, free sides); `mounts` points
@@ -180,8 +183,6 @@ class Plate(eqx.Module):
     def __init__(self, length=0.132, width=0.077, thickness=1.0e-3, youngs_modulus=22e9, density=1900.0,
                  poisson_ratio=0.2, damping_ratio=0.0, edges="SFSF", mounts=None, mount_radius=2.5e-3,
                  basis=BASIS):
-        from ._scene import _init_fields
-
         if not (isinstance(edges, str) and len(edges) == 4 and set(edges) <= set(EDGE_CODES)):
             raise ValueError(f"Plate.edges = {edges!r}; valid: four letters of S (supported), C (clamped), F (free) "
                              "for the edges x = 0, y = -W/2, x = L, y = +W/2, e.g. 'SFSF', 'SSSS', 'FFFF'")
@@ -189,22 +190,18 @@ class Plate(eqx.Module):
                                                                      for b in basis)):
             raise ValueError(f"Plate.basis = {basis!r}; valid: (nx, ny), integers in [2, 40]")
         self.edges, self.basis = edges, basis
-        _init_fields(self, dict(length=length, width=width, thickness=thickness, youngs_modulus=youngs_modulus,
+        init_fields(self, dict(length=length, width=width, thickness=thickness, youngs_modulus=youngs_modulus,
                                 density=density, poisson_ratio=poisson_ratio, damping_ratio=damping_ratio,
                                 mount_radius=mount_radius))
         if mounts is None:
             self.mounts = None
         else:
-            from ._checks import as_float
-
             self.mounts = as_float(mounts, "Plate.mounts", Range(unit="m"))
             if self.mounts.ndim != 2 or self.mounts.shape[-1] != 2 or self.mounts.shape[0] < 1:
                 raise ValueError(f"Plate.mounts has shape {self.mounts.shape}; valid: ((x, y), ...), at least one")
 
     def __check_init__(self):
-        from ._scene import _check_ranges
-
-        _check_ranges(self)
+        check_ranges(self)
         if self.mounts is not None and is_concrete(self):
             m = np.asarray(self.mounts)
             L, W = np.asarray(self.length)[..., None], np.asarray(self.width)[..., None]  # batches too
@@ -222,11 +219,27 @@ class Plate(eqx.Module):
         """D = E h^3 / (12 (1 - nu^2)), N m."""
         return self.youngs_modulus * self.thickness**3 / (12.0 * (1.0 - self.poisson_ratio**2))
 
+    SECTION: ClassVar[str] = "plate"
+    SURFACE: ClassVar[bool] = True
+
+    def modes(self, n_modes: int) -> "PlateModes":
+        """The lowest `n_modes` modes (one eigensolve)."""
+        return plate_modes(self, n_modes)
+
+    def frequencies(self, n_modes: int) -> Float[Array, " n"]:
+        return plate_frequencies(self, n_modes)
+
+    def participation(self, n_modes: int) -> Float[Array, "n 2"]:
+        return plate_participation(self, n_modes)
+
+    def describe(self) -> str:
+        mounts = "" if self.mounts is None else f", {self.mounts.shape[-2]} mounts"
+        return (f"plate {float(self.length) * 1e3:g} x {float(self.width) * 1e3:g} mm, edges {self.edges}"
+                f"{mounts}")
+
     def flags(self):
         """Traceable checks of this plate (int32 mask of `Flag`)."""
-        from ._scene import _range_flags
-
-        flags = combine(_range_flags(self), flag_if(_single_precision(self), Flag.PRECISION))
+        flags = combine(range_flags(self), flag_if(_single_precision(self), Flag.PRECISION))
         if self.mounts is not None:
             inside = (self.mounts[..., 0] >= 0) & (self.mounts[..., 0] <= jnp.asarray(self.length)[..., None]) & \
                      (jnp.abs(self.mounts[..., 1]) <= jnp.asarray(self.width)[..., None] / 2)
@@ -303,7 +316,7 @@ def _values(plate: Plate, xi, eta, derivatives: bool = False):
     return (outer(X[0], Y[0]), outer(X[2], Y[0]) / L**2, outer(X[0], Y[2]) / W**2, outer(X[1], Y[1]) / (L * W))
 
 
-class PlateModes(eqx.Module):
+class PlateModes(AbstractModal):
     """The lowest modes of a plate: `omega2` (rad^2/s^2) and Ritz coefficients (nx * ny, n); evaluates shapes."""
 
     plate: Plate
@@ -317,15 +330,17 @@ class PlateModes(eqx.Module):
                          derivatives=derivatives)
         return tuple(v @ self.coeffs for v in values) if derivatives else values @ self.coeffs
 
-    def frequencies(self) -> Float[Array, " n"]:
-        """omega_k, rad/s."""
-        return jnp.sqrt(jnp.maximum(self.omega2, jnp.finfo(self.omega2.dtype).tiny ** 0.25))
+    def frequencies(self, n_modes: int | None = None) -> Float[Array, " n"]:
+        """omega_k, rad/s (the lowest `n_modes`; all without)."""
+        return jnp.sqrt(jnp.maximum(self.omega2, jnp.finfo(self.omega2.dtype).tiny ** 0.25))[:n_modes]
 
-    def participation(self) -> Float[Array, "n 2"]:
-        """Modal forcing per unit support acceleration (columns p_A, p_B), as the beam's."""
+
+    def participation(self, n_modes: int | None = None) -> Float[Array, "n 2"]:
+        """Modal forcing per unit support acceleration (columns p_A, p_B), as the beam's (the lowest `n_modes`;
+        all without)."""
         (_, _, _, _, (mx, mxi)), (_, _, _, _, (my,)) = _integrals(_basis_of(self.plate))
         moments = jnp.asarray(np.stack([np.kron(mx - mxi, my), np.kron(mxi, my)], axis=-1), dtype=float_dtype())
-        return -2.0 * self.coeffs.T @ moments
+        return (-2.0 * self.coeffs.T @ moments)[:n_modes]
 
     @property
     def damping_ratio(self):

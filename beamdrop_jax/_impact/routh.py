@@ -27,8 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._checks import Flag, Range, array_module, as_float, combine, flag_if, is_concrete
-from ._compile import jit
+from .._common.checks import Flag, Range, array_module, as_float, combine, flag_if, is_concrete
+from .._common.compile import jit
 
 
 class ImpactMode(enum.IntEnum):
@@ -78,7 +78,7 @@ class ImpactResult(eqx.Module):
 
     def summary(self) -> dict:
         """The impact's numbers, units in the keys (JSON-ready; `repr` prints them)."""
-        from ._report import plain
+        from .._common.report import plain
 
         if jnp.ndim(self.mode):
             raise ValueError("ImpactResult.summary() needs one impact (index a batched one first)")
@@ -92,7 +92,7 @@ class ImpactResult(eqx.Module):
         })
 
     def __repr__(self) -> str:
-        from ._report import summary_text
+        from .._common.report import summary_text
 
         try:
             return summary_text(self.summary(), "ImpactResult")

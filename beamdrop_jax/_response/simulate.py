@@ -16,20 +16,22 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Complex, Float, Int
 
-from ._checks import float_dtype
-from ._beam import curvature_scale, modal_velocity_jumps, mode_shapes, natural_frequencies, wavenumbers
-from ._board import fundamental_period, free_phasor, pulse_phasors, unit_response, unit_response_jet
-from ._trig import cexp, sincos
-from ._checks import Flag, Range, as_float, as_int, as_real, combine, flag_if, is_concrete, raise_if_flagged, require
-from ._impact import LAWS, ImpactResult
-from ._integrate import SOLVERS, solve_modes
-from ._clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
-from ._kinematics import HousingImpact, housing_impact
-from ._motion import HalfSine, Impulse, PulseTrain, Record
-from ._peaks import FieldPeak, field_on_grid, find_peak, find_plate_peak, plate_starts, stop_gradient
-from ._plate import Plate, PlateModes, plate_modes, surface_strain, surface_stress
-from ._scene import Board, Scene, check_scene, require_single, scene_flags
-from ._compile import filter_jit
+from .._common.checks import float_dtype
+from .._board.beam import mode_shapes, wavenumbers
+from .._board.base import curvature_scale, modal_velocity_jumps, natural_frequencies
+from .pulses import fundamental_period, free_phasor, pulse_phasors, unit_response, unit_response_jet
+from .._common.trig import cexp, sincos
+from .._common.checks import Flag, Range, as_float, as_int, as_real, combine, flag_if, is_concrete, raise_if_flagged, require
+from .._impact.routh import LAWS, ImpactResult
+from .diffrax_path import SOLVERS, solve_modes
+from .._impact.clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
+from .._impact.kinematics import HousingImpact, housing_impact
+from .._impact.motion import HalfSine, Impulse, PulseTrain, Record
+from .._board.search import FieldPeak, field_on_grid, find_peak, find_plate_peak, plate_starts, stop_gradient
+from .._board.plate import Plate, PlateModes, plate_modes, surface_strain, surface_stress
+from .._board.beam import Board
+from .._scene.containers import Scene, check_scene, require_single, scene_flags
+from .._common.compile import filter_jit
 
 METHODS = ("closed_form", "diffrax")
 
@@ -177,8 +179,8 @@ class Response(eqx.Module):
 
     def summary(self) -> dict:
         """The numbers of one response, units in the keys (JSON-ready with `plain`; `repr` prints them)."""
-        from ._impact import ImpactMode
-        from ._report import plain
+        from .._impact.routh import ImpactMode
+        from .._common.report import plain
 
         if jnp.ndim(self.peak.stress) or not is_concrete(self):
             raise ValueError("Response.summary() needs one concrete response (index a batched one first)")
@@ -218,7 +220,7 @@ class Response(eqx.Module):
 
 
     def __repr__(self) -> str:
-        from ._report import summary_text
+        from .._common.report import summary_text
 
         try:
             return summary_text(self.summary(), "Response (x from end A, t from the first impact)")

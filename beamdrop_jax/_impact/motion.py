@@ -12,8 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import float_dtype
-from ._checks import GRAVITY, is_concrete, require
+from .._common.checks import float_dtype
+from .._common.checks import GRAVITY, is_concrete, require
 
 
 def _f(x):

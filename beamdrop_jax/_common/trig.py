@@ -13,7 +13,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from ._compile import is_quick
+from .compile import is_quick
 
 # Cephes sin.c: minimax polynomials on [-pi/4, pi/4] and pi/4 split so that j * _PI4[0] is exact for j < 2^29.
 _SIN = (1.58962301576546568060e-10, -2.50507477628578072866e-8, 2.75573136213857245213e-6,

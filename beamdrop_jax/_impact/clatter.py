@@ -26,10 +26,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._checks import GRAVITY, Flag, combine, flag_if
-from ._kinematics import HousingImpact, corner_impact, housing_impact, support_jumps
-from ._scene import Scene
-from ._trig import sincos
+from .._common.checks import GRAVITY, Flag, combine, flag_if
+from .kinematics import HousingImpact, corner_impact, housing_impact, support_jumps
+from .._scene.containers import Scene
+from .._common.trig import sincos
 
 
 class Ending(enum.IntEnum):

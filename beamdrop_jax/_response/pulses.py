@@ -6,10 +6,11 @@ import math
 import jax
 import jax.numpy as jnp
 
-from ._beam import natural_frequencies
-from ._checks import float_dtype
-from ._scene import Board
-from ._trig import cexp, sincos
+from .._board.base import natural_frequencies
+from .._common.checks import float_dtype
+from .._board.beam import Board
+
+from .._common.trig import cexp, sincos
 
 
 _SERIES_RADIUS = 0.1

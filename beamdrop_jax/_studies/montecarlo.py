@@ -18,13 +18,13 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Bool, Float, Int
 from tqdm import tqdm
 
-from ._checks import float_dtype
-from ._checks import Flag
-from ._plate import Plate
-from ._scene import Scene, check_scene
-from ._simulate import Numerics, _scene_peaks, drop_motion
-from ._superposition import superposes, superposition_table, table_numerics, table_peaks
-from ._compile import filter_jit
+from .._common.checks import float_dtype
+from .._common.checks import Flag
+from .._board.plate import Plate
+from .._scene.containers import Scene, check_scene
+from .._response.simulate import Numerics, _scene_peaks, drop_motion
+from .._response.superposition import superposes, superposition_table, table_numerics, table_peaks
+from .._common.compile import filter_jit
 
 _AHEAD = 2
 
@@ -197,7 +197,7 @@ class MonteCarloResult(eqx.Module):
         return out
 
     def __repr__(self) -> str:
-        from ._report import summary_text
+        from .._common.report import summary_text
 
         return summary_text(self.report(), "MonteCarloResult")
 
@@ -219,7 +219,7 @@ def montecarlo_numerics(scene: Scene, distribution: "DropDistribution | None" = 
     modes), a grid of 2 points per period of the top mode and 3 per mode along the board, and three candidates
     refined: each impact's window nominates three, ranked by their parabolic interpolation. On 1024 random default
     drops with 3 impacts: within 0.27 % of 32 modes (the single-impact mode count plus one: 1.5 %)."""
-    from ._beam import natural_frequencies
+    from .._board.base import natural_frequencies
 
     tau = float(scene.contact.duration)
     pinned = getattr(scene.board, "ends", None) == "pinned"  # plates converge as slowly as clamped beams

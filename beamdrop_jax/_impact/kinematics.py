@@ -10,11 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._checks import GRAVITY, Flag, array_module, combine, flag_if, is_concrete
-from ._compile import filter_jit
-from ._impact import ImpactMode, ImpactResult, routh_impulse
-from ._scene import Scene, board_ends
-from ._trig import sincos
+from .._common.checks import GRAVITY, Flag, array_module, combine, flag_if, is_concrete
+from .._common.compile import filter_jit
+from .routh import ImpactMode, ImpactResult, routh_impulse
+from .._scene.containers import Scene, board_ends
+from .._common.trig import sincos
 
 
 def body_axes(orientation) -> Float[Array, "2 2"]:

@@ -16,11 +16,11 @@ import numpy as np
 from jaxtyping import Array, Float
 from tqdm import tqdm
 
-from ._checks import float_dtype
-from ._checks import Flag, combine
-from ._scene import Placement, Scene, check_scene, scene_flags
-from ._simulate import Numerics, peak_stress
-from ._compile import filter_jit
+from .._common.checks import float_dtype
+from .._common.checks import Flag, combine
+from .._scene.containers import Placement, Scene, check_scene, scene_flags
+from .._response.simulate import Numerics, peak_stress
+from .._common.compile import filter_jit
 
 OBJECTIVES = ("mean", "max", "cvar")
 
@@ -149,7 +149,7 @@ class PlacementResult(eqx.Module):
 
     def summary(self, scene: Scene | None = None) -> dict:
         """Before (the scene's placement, when given) and after, units in the keys."""
-        from ._report import plain
+        from .._common.report import plain
 
         def where(p, when):
             return {f"{when}_centre_mm": np.asarray(p.centre) * 1e3, f"{when}_angle_deg": np.degrees(p.angle)}
@@ -162,7 +162,7 @@ class PlacementResult(eqx.Module):
         return plain(out)
 
     def __repr__(self) -> str:
-        from ._report import summary_text
+        from .._common.report import summary_text
 
         return summary_text(self.summary(), "PlacementResult")
 
@@ -267,7 +267,7 @@ def _finish(scene, best_u, best_v, histories, path_u, config):
 
 @filter_jit
 def _drop_flags(drops: Scene, law: str):
-    from ._kinematics import housing_impact
+    from .._impact.kinematics import housing_impact
 
     return jax.vmap(lambda s: combine(scene_flags(s), housing_impact(s, law=law).flags))(drops)
 

@@ -8,12 +8,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._scene import Scene, _section_classes
-from ._simulate import Numerics, _plate_points, _setup, drop_motion, peak_deflection, peak_strain, peak_stress
-from ._beam import mode_shapes
-from ._peaks import field_on_grid, near_mounts
-from ._plate import Plate, surface_stress
-from ._compile import filter_jit
+from .._scene.containers import Scene, _section_classes
+from .._response.simulate import Numerics, _plate_points, _setup, drop_motion, peak_deflection, peak_strain, peak_stress
+from .._board.beam import mode_shapes
+from .._board.search import field_on_grid, near_mounts
+from .._board.plate import Plate, surface_stress
+from .._common.compile import filter_jit
 
 _PEAKS = {"stress": peak_stress, "strain": peak_strain, "deflection": peak_deflection}
 

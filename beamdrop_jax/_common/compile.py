@@ -178,8 +178,9 @@ def _environment() -> str:
     """What a kept program depends on besides its arguments: this package's source, the libraries it traces and
     compiles with, and the processor it was compiled for (an executable uses the host's instruction set)."""
     digest = hashlib.sha256()
-    for path in sorted(Path(__file__).parent.glob("*.py")):
-        digest.update(path.name.encode() + path.read_bytes())
+    package = Path(__file__).parents[1]
+    for path in sorted(package.rglob("*.py")):
+        digest.update(path.relative_to(package).as_posix().encode() + path.read_bytes())
     versions = []
     for name in ("jax", "jaxlib", "equinox", "diffrax", "lineax", "optimistix", "jaxtyping", "numpy"):
         try:

@@ -33,14 +33,17 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._beam import SYMMETRIC_ENDS, mode_shapes, support_participation
-from ._board import unit_response, unit_response_jet
-from ._checks import Flag, Range, as_int, as_real, combine, flag_if, float_dtype
-from ._motion import HalfSine
-from ._plate import Plate
-from ._scene import Board, Scene, scene_flags
-from ._simulate import PLATE_MEASURES, Numerics, _plate_points, _plate_searches, _search, _setup, drop_motion
-from ._compile import filter_jit, jit
+from .._board.beam import SYMMETRIC_ENDS, mode_shapes
+
+from .._board.base import support_participation
+from .pulses import unit_response, unit_response_jet
+from .._common.checks import Flag, Range, as_int, as_real, combine, flag_if, float_dtype
+from .._impact.motion import HalfSine
+from .._board.plate import Plate
+from .._board.beam import Board
+from .._scene.containers import Scene, scene_flags
+from .simulate import PLATE_MEASURES, Numerics, _plate_points, _plate_searches, _search, _setup, drop_motion
+from .._common.compile import filter_jit, jit
 
 _BUILD_BATCH = 16
 DURATION_NODES = 17
@@ -225,7 +228,7 @@ class PlateTable(eqx.Module):
 def _mirror_symmetric(plate: Plate) -> bool:
     """Whether a concrete plate maps onto itself under x -> L - x (its two ends alike, its mounts in mirror pairs);
     False for traced plates."""
-    from ._checks import is_concrete
+    from .._common.checks import is_concrete
 
     if not is_concrete(plate) or plate.edges[0] != plate.edges[2]:
         return False
@@ -458,7 +461,7 @@ def _cells(board, unit, rows, x, t, rates, omega, zeta, durations):
 def _kept_modes(scene: Scene):
     """The modes `simulate` keeps for a scene's pulse (one compiled program: op by op, a plate's eigensolve took
     0.25 s)."""
-    from ._simulate import _mode_counts, support_motion
+    from .simulate import _mode_counts, support_motion
 
     return _mode_counts(scene.board, support_motion(scene, jnp.ones(2)), Numerics())[0]
 

@@ -19,14 +19,17 @@ with g = int phi'^2 / int phi^2, exact for pinned ends. Rotation-induced (centri
 
 import functools
 import math
+from typing import ClassVar
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import float_dtype
-from ._plate import Plate, PlateModes, plate_frequencies, plate_participation
-from ._trig import sincos
+from .._common.checks import Flag, Range, combine, flag_if, float_dtype, is_concrete, on_host, require
+from .._common.fields import check_ranges, init_fields, positive, range_flags
+from .base import AbstractBoard
+from .._common.trig import sincos
 
 ENDS = ("pinned", "clamped", "clamped-pinned", "pinned-clamped", "clamped-free")
 """End conditions (end A, end B): pinned-pinned, clamped-clamped, clamped at A and pinned at B, ..."""
@@ -124,17 +127,7 @@ def wavenumbers(board, n_modes: int) -> Float[Array, " n"]:
     return _jnp(_modes(board.ends, n_modes)[0]) / board.length
 
 
-def natural_frequencies(board, n_modes: int) -> Float[Array, " n"]:
-    """Undamped natural frequencies omega_k (rad/s), k = 1..n, including the axial force.
-
-    A buckled board (axial force at or past the Euler load of its ends) has no real frequency; it is flagged by
-    `Board.flags()` and the frequencies are clamped to a tiny positive value so nothing downstream is NaN.
-    A `Plate` gives its lowest n (`_plate`).
-    """
-    if isinstance(board, Plate):
-        return plate_frequencies(board, n_modes)
-    if isinstance(board, PlateModes):  # a plate's modes, solved once per drop
-        return board.frequencies()[:n_modes]
+def _frequencies(board, n_modes: int) -> Float[Array, " n"]:
     # Pinned ends in closed form: traced, these compile to a faster per-drop loop than the same numbers as
     # constants (measured: direct Monte-Carlo 2.5x faster).
     if board.ends == "pinned":
@@ -149,13 +142,7 @@ def natural_frequencies(board, n_modes: int) -> Float[Array, " n"]:
     return jnp.sqrt(jnp.maximum(omega2, tiny))
 
 
-def support_participation(board, n_modes: int) -> Float[Array, "n 2"]:
-    """Modal forcing per unit support acceleration: F_k = p_kA a_A + p_kB a_B (columns p_A, p_B); beams and
-    plates (`_plate`)."""
-    if isinstance(board, Plate):
-        return plate_participation(board, n_modes)
-    if isinstance(board, PlateModes):
-        return board.participation()[:n_modes]
+def _participation(board, n_modes: int) -> Float[Array, "n 2"]:
     if board.ends == "pinned":
         k = mode_numbers(n_modes)
         return jnp.stack([-2.0 / (k * math.pi), 2.0 * (-1.0) ** k / (k * math.pi)], axis=-1)
@@ -163,14 +150,9 @@ def support_participation(board, n_modes: int) -> Float[Array, "n 2"]:
     return jnp.stack([_jnp(modes[5]), _jnp(modes[6])], axis=-1)
 
 
-def modal_velocity_jumps(board, jumps: Float[Array, "2"], n_modes: int) -> Float[Array, " n"]:
-    """The modal velocities an ideal impulse with support velocity jumps (dvA, dvB) leaves, m/s."""
-    return support_participation(board, n_modes) @ jnp.asarray(jumps)
-
-
-def curvature_scale(board, n_modes: int) -> Float[Array, " n"]:
-    """Per mode, the factor that turns `mode_shapes(..., curvature=False)` into curvature shapes phi_k'' where
-    that is possible (pinned: -(k pi / L)^2), else ones (`mode_shapes(..., curvature=True)` is then phi_k'')."""
+def _curvature_scale(board, n_modes: int) -> Float[Array, " n"]:
+    """Pinned: -(k pi / L)^2, which turns `mode_shapes(..., curvature=False)` (the sines) into phi_k''; else ones
+    (`mode_shapes(..., curvature=True)` is then phi_k'')."""
     if board.ends == "pinned":
         return -(wavenumbers(board, n_modes) ** 2)
     return jnp.ones(n_modes, dtype=float_dtype())
@@ -201,3 +183,99 @@ def mode_shapes(board, x, n_modes: int, curvature=False, orders=0):
         else:
             out = tuple(jnp.where(curvature, values[o + 2] / L ** (o + 2), v) for o, v in zip(orders, deflection))
     return out[0] if single else out
+
+
+class Board(AbstractBoard):
+    """Euler-Bernoulli board (SI units), its `ends` (at A, at B) one of `"pinned"` (default), `"clamped"`,
+    `"clamped-pinned"`, `"pinned-clamped"`, `"clamped-free"`; clamps rotate with the housing.
+
+    `axial_force` N is positive in tension; compression at or past the Euler load of the ends (pinned:
+    EI pi^2 / L^2) buckles and is rejected; with ends other than pinned its effect on the frequencies is the
+    Galerkin estimate on the unloaded modes. `damping_ratio` is the modal damping ratio zeta, the same for every
+    mode, in [0, 1).
+    """
+
+    length: Float[Array, ""]
+    thickness: Float[Array, ""]
+    width: Float[Array, ""]
+    youngs_modulus: Float[Array, ""]
+    density: Float[Array, ""]
+    axial_force: Float[Array, ""]
+    damping_ratio: Float[Array, ""]
+    ends: str = eqx.field(static=True)
+
+    RANGES: ClassVar[dict] = {
+        "length": positive("m", 1e-4, 100.0),
+        "thickness": positive("m", 1e-6, 10.0),
+        "width": positive("m", 1e-6, 100.0),
+        "youngs_modulus": positive("Pa", 1.0, 1e13),
+        "density": positive("kg/m^3", 1e-3, 1e6),
+        # The buckling bound depends on the other fields: checked in __check_init__ and `flags`.
+        "axial_force": (Range(unit="N"), Flag.NONFINITE_INPUT),
+        "damping_ratio": (Range(0.0, 1.0, hi_open=True), Flag.DAMPING_RANGE),
+    }
+
+    def __init__(
+        self,
+        length=0.10,
+        thickness=1.0e-3,
+        width=0.05,
+        youngs_modulus=22e9,
+        density=1900.0,
+        axial_force=0.0,
+        damping_ratio=0.0,
+        ends="pinned",
+    ):
+        if ends not in ENDS:
+            import difflib
+
+            near = difflib.get_close_matches(str(ends), ENDS, n=1)
+            hint = f" (did you mean {near[0]!r}?)" if near else ""
+            raise ValueError(f"Board.ends = {ends!r}{hint}; valid: {', '.join(ENDS)}")
+        self.ends = ends
+        init_fields(self, dict(length=length, thickness=thickness, width=width, youngs_modulus=youngs_modulus,
+                                density=density, axial_force=axial_force, damping_ratio=damping_ratio))
+
+    def __check_init__(self):
+        check_ranges(self)
+        if is_concrete(self):
+            require(self.axial_force, "Board.axial_force", -float(np.max(on_host(self).buckling_force)), lo_open=True,
+                    unit="N")
+
+    @property
+    def bending_stiffness(self) -> Float[Array, ""]:
+        """EI = E b h^3 / 12, N m^2."""
+        return self.youngs_modulus * self.width * self.thickness**3 / 12.0
+
+    @property
+    def mass_per_length(self) -> Float[Array, ""]:
+        """rho A = rho b h, kg/m."""
+        return self.density * self.width * self.thickness
+
+    @property
+    def buckling_force(self) -> Float[Array, ""]:
+        """Euler load of the board's ends (N; pinned: EI pi^2 / L^2): compression of this size buckles it."""
+        return self.bending_stiffness * EULER_LOAD[self.ends] / self.length**2
+
+    SECTION: ClassVar[str] = "board"
+    SURFACE: ClassVar[bool] = False
+
+    def modes(self, n_modes: int) -> "Board":
+        """A beam's modes are closed-form functions of the board and the mode count: the board is its own modes."""
+        return self
+
+    def frequencies(self, n_modes: int) -> Float[Array, " n"]:
+        return _frequencies(self, n_modes)
+
+    def participation(self, n_modes: int) -> Float[Array, "n 2"]:
+        return _participation(self, n_modes)
+
+    def curvature_scale(self, n_modes: int) -> Float[Array, " n"]:
+        return _curvature_scale(self, n_modes)
+
+    def describe(self) -> str:
+        return f"beam {float(self.length) * 1e3:g} mm, {self.ends} ends"
+
+    def flags(self):
+        """Traceable checks of this board (int32 mask of `Flag`)."""
+        return combine(range_flags(self), flag_if(~(self.axial_force > -self.buckling_force), Flag.BUCKLED))

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
-from ._beam import mode_shapes
+from .beam import mode_shapes
 
 
 class FieldPeak(eqx.Module):

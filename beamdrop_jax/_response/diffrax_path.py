@@ -12,9 +12,12 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ._beam import modal_velocity_jumps, natural_frequencies, support_participation, wavenumbers
-from ._motion import HalfSine, Record
-from ._scene import Board
+from .._board.beam import wavenumbers
+
+from .._board.base import modal_velocity_jumps, natural_frequencies, support_participation
+from .._impact.motion import HalfSine, Record
+from .._board.beam import Board
+
 
 # Names of diffrax solvers; diffrax itself is imported when a solve needs it (it takes a second to import).
 SOLVERS = ("Tsit5", "Dopri5", "Dopri8", "Kvaerno3", "Kvaerno5", "ImplicitEuler", "Heun", "Bosh3")

@@ -16,48 +16,19 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._beam import ENDS, EULER_LOAD
-from ._compile import filter_jit
-from ._checks import (DEG, Flag, Range, array_module, as_float, combine, flag_if, is_concrete, on_host,
+from .._board.base import AbstractBoard
+from .._board.beam import Board
+from .._common.fields import VECTOR_FIELDS, check_ranges, init_fields, positive, range_flags
+from .._common.compile import filter_jit
+from .._common.checks import (DEG, Flag, Range, array_module, as_float, combine, flag_if, is_concrete, on_host,
                       raise_if_flagged, require)
 
 # Angles beyond this many radians (about 1600 turns) are rejected: no drop needs them, and the sine and cosine of
 # larger arguments lose their argument reduction in the fast polynomial the response uses.
 MAX_ANGLE = 1.0e4
 
-def _positive(unit, lo, hi):
-    """A size or material constant: positive, and within magnitudes where the arithmetic stays exact in float64
-    (beyond them products such as E h^3 or 1/m over- or underflow, and a result could not name its cause)."""
-    return Range(lo, hi, unit=unit), Flag.NONPOSITIVE_SIZE
-
-
 _ANGLE = (Range(-MAX_ANGLE, MAX_ANGLE, unit="rad"), Flag.ANGLE_RANGE)
 _ANY = {unit: (Range(unit=unit), Flag.NONFINITE_INPUT) for unit in ("m", "rad/s", "m/s")}
-
-
-def _init_fields(module, values: dict):
-    """Set each field from `values` as a float array, rejecting non-numbers with the field's name and range."""
-    cls = type(module)
-    for name, value in values.items():
-        setattr(module, name, as_float(value, f"{cls.__name__}.{name}", cls.RANGES[name][0]))
-
-
-def _check_ranges(module, skip=()):
-    cls = type(module)
-    for name, (valid, _) in cls.RANGES.items():
-        if name not in skip:
-            valid.require(getattr(module, name), f"{cls.__name__}.{name}")
-
-
-def _range_flags(module):
-    def ok(name, valid):
-        inside = valid.contains(getattr(module, name))
-        return jnp.all(inside, axis=-1) if name in VECTOR_FIELDS else inside
-
-    return combine(*(flag_if(~ok(name, valid), flag) for name, (valid, flag) in type(module).RANGES.items()))
-
-
-VECTOR_FIELDS = {"centre"}  # fields with a trailing axis of their own (a pair), not a batch axis
 
 
 class Housing(eqx.Module):
@@ -72,103 +43,26 @@ class Housing(eqx.Module):
     radius_of_gyration: Float[Array, ""]
 
     RANGES: ClassVar[dict] = {
-        "width": _positive("m", 1e-4, 100.0),
-        "height": _positive("m", 1e-4, 100.0),
-        "mass": _positive("kg", 1e-6, 1e5),
-        "radius_of_gyration": _positive("m", 1e-5, 100.0),
+        "width": positive("m", 1e-4, 100.0),
+        "height": positive("m", 1e-4, 100.0),
+        "mass": positive("kg", 1e-6, 1e5),
+        "radius_of_gyration": positive("m", 1e-5, 100.0),
     }
 
     def __init__(self, width=0.15, height=0.075, mass=0.18, radius_of_gyration=None):
-        _init_fields(self, dict(width=width, height=height, mass=mass))
+        init_fields(self, dict(width=width, height=height, mass=mass))
         if radius_of_gyration is None:
             w, h = (on_host(v) if is_concrete(v) else v for v in (self.width, self.height))
             radius_of_gyration = array_module(w, h).sqrt((w**2 + h**2) / 12.0)
-        _init_fields(self, dict(radius_of_gyration=radius_of_gyration))
+        init_fields(self, dict(radius_of_gyration=radius_of_gyration))
 
     def __check_init__(self):
-        _check_ranges(self)
+        check_ranges(self)
 
     @property
     def inertia(self) -> Float[Array, ""]:
         """Moment of inertia about G, kg m^2."""
         return self.mass * self.radius_of_gyration**2
-
-
-class Board(eqx.Module):
-    """Euler-Bernoulli board (SI units), its `ends` (at A, at B) one of `"pinned"` (default), `"clamped"`,
-    `"clamped-pinned"`, `"pinned-clamped"`, `"clamped-free"`; clamps rotate with the housing.
-
-    `axial_force` N is positive in tension; compression at or past the Euler load of the ends (pinned:
-    EI pi^2 / L^2) buckles and is rejected; with ends other than pinned its effect on the frequencies is the
-    Galerkin estimate on the unloaded modes. `damping_ratio` is the modal damping ratio zeta, the same for every
-    mode, in [0, 1).
-    """
-
-    length: Float[Array, ""]
-    thickness: Float[Array, ""]
-    width: Float[Array, ""]
-    youngs_modulus: Float[Array, ""]
-    density: Float[Array, ""]
-    axial_force: Float[Array, ""]
-    damping_ratio: Float[Array, ""]
-    ends: str = eqx.field(static=True)
-
-    RANGES: ClassVar[dict] = {
-        "length": _positive("m", 1e-4, 100.0),
-        "thickness": _positive("m", 1e-6, 10.0),
-        "width": _positive("m", 1e-6, 100.0),
-        "youngs_modulus": _positive("Pa", 1.0, 1e13),
-        "density": _positive("kg/m^3", 1e-3, 1e6),
-        # The buckling bound depends on the other fields: checked in __check_init__ and `flags`.
-        "axial_force": (Range(unit="N"), Flag.NONFINITE_INPUT),
-        "damping_ratio": (Range(0.0, 1.0, hi_open=True), Flag.DAMPING_RANGE),
-    }
-
-    def __init__(
-        self,
-        length=0.10,
-        thickness=1.0e-3,
-        width=0.05,
-        youngs_modulus=22e9,
-        density=1900.0,
-        axial_force=0.0,
-        damping_ratio=0.0,
-        ends="pinned",
-    ):
-        if ends not in ENDS:
-            import difflib
-
-            near = difflib.get_close_matches(str(ends), ENDS, n=1)
-            hint = f" (did you mean {near[0]!r}?)" if near else ""
-            raise ValueError(f"Board.ends = {ends!r}{hint}; valid: {', '.join(ENDS)}")
-        self.ends = ends
-        _init_fields(self, dict(length=length, thickness=thickness, width=width, youngs_modulus=youngs_modulus,
-                                density=density, axial_force=axial_force, damping_ratio=damping_ratio))
-
-    def __check_init__(self):
-        _check_ranges(self)
-        if is_concrete(self):
-            require(self.axial_force, "Board.axial_force", -float(np.max(on_host(self).buckling_force)), lo_open=True,
-                    unit="N")
-
-    @property
-    def bending_stiffness(self) -> Float[Array, ""]:
-        """EI = E b h^3 / 12, N m^2."""
-        return self.youngs_modulus * self.width * self.thickness**3 / 12.0
-
-    @property
-    def mass_per_length(self) -> Float[Array, ""]:
-        """rho A = rho b h, kg/m."""
-        return self.density * self.width * self.thickness
-
-    @property
-    def buckling_force(self) -> Float[Array, ""]:
-        """Euler load of the board's ends (N; pinned: EI pi^2 / L^2): compression of this size buckles it."""
-        return self.bending_stiffness * EULER_LOAD[self.ends] / self.length**2
-
-    def flags(self):
-        """Traceable checks of this board (int32 mask of `Flag`)."""
-        return combine(_range_flags(self), flag_if(~(self.axial_force > -self.buckling_force), Flag.BUCKLED))
 
 
 class Placement(eqx.Module):
@@ -180,12 +74,12 @@ class Placement(eqx.Module):
     RANGES: ClassVar[dict] = {"centre": _ANY["m"], "angle": _ANGLE}
 
     def __init__(self, centre=(0.0, 0.0), angle=0.0):
-        _init_fields(self, dict(centre=centre, angle=angle))
+        init_fields(self, dict(centre=centre, angle=angle))
 
     def __check_init__(self):
         if jnp.shape(self.centre)[-1:] != (2,):
             raise ValueError(f"Placement.centre must be a pair (c1, c2) in m, got shape {jnp.shape(self.centre)}")
-        _check_ranges(self)
+        check_ranges(self)
 
 
 class Drop(eqx.Module):
@@ -205,10 +99,10 @@ class Drop(eqx.Module):
     }
 
     def __init__(self, orientation=30 * DEG, height=1.5, spin=0.0, horizontal_speed=0.0):
-        _init_fields(self, dict(orientation=orientation, height=height, spin=spin, horizontal_speed=horizontal_speed))
+        init_fields(self, dict(orientation=orientation, height=height, spin=spin, horizontal_speed=horizontal_speed))
 
     def __check_init__(self):
-        _check_ranges(self)
+        check_ranges(self)
 
 
 class Contact(eqx.Module):
@@ -226,10 +120,10 @@ class Contact(eqx.Module):
     }
 
     def __init__(self, friction=0.3, restitution=0.5, duration=5e-4):
-        _init_fields(self, dict(friction=friction, restitution=restitution, duration=duration))
+        init_fields(self, dict(friction=friction, restitution=restitution, duration=duration))
 
     def __check_init__(self):
-        _check_ranges(self)
+        check_ranges(self)
 
 
 SECTIONS = {"housing": Housing, "board": Board, "placement": Placement, "drop": Drop, "contact": Contact}
@@ -275,7 +169,7 @@ class Scene(eqx.Module):
     @classmethod
     def default(cls) -> "Scene":
         """The embedded phone-like scene (`beamdrop_jax/scenes/default.toml`)."""
-        from ._scenefile import load_scene
+        from .file import load_scene
 
         return load_scene("default")
 
@@ -342,7 +236,7 @@ def scene_flags(scene: Scene):
     finite = functools.reduce(jnp.logical_and, [jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(scene)])
     return combine(
         flag_if(~finite, Flag.NONFINITE_INPUT),
-        *(_range_flags(getattr(scene, section)) for section in SECTIONS if section != "board"),
+        *(range_flags(getattr(scene, section)) for section in SECTIONS if section != "board"),
         scene.board.flags(),
         flag_if(_board_outside(scene), Flag.BOARD_OUTSIDE_HOUSING),
     )

@@ -28,8 +28,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import Flag
-from ._motion import JESD22_B111_CONDITION_B, HalfSine
+from .._common.checks import Flag
+from .._impact.motion import JESD22_B111_CONDITION_B, HalfSine
 
 FACE_ORIENTATION = {1: math.pi, 2: -math.pi / 2, 3: 0.0, 4: math.pi / 2}
 _FACE_SIGN = {1: (None, 1), 2: (1, None), 3: (None, -1), 4: (-1, None)}  # which corner coordinate a face fixes
@@ -196,7 +196,7 @@ class CampaignResult:
 
     def to_csv(self, path) -> Path:
         """Write `rows()` as CSV; returns the path."""
-        from ._report import write_csv
+        from .._common.report import write_csv
 
         return write_csv(self.rows(), path)
 
@@ -224,7 +224,7 @@ class CampaignResult:
         }
 
     def __repr__(self) -> str:
-        from ._report import summary_text
+        from .._common.report import summary_text
 
         return summary_text(self.summary(), "CampaignResult") + "\n" + self.table()
 
@@ -234,8 +234,8 @@ def campaign(scene, standard: str, numerics=None, *, mass: float | None = None, 
     each drop of the standard): a `CampaignResult`. Standards: `STANDARDS` (ista-1a, ista-2a, mil-std-810h-516-iv,
     iec-60068-2-31, jesd22-b111); `mass`, `height` as in `campaign_drops`. How each 3-D drop maps onto the plane
     is in this module's notes."""
-    from ._montecarlo import sample_axes
-    from ._simulate import Numerics, _scene_peaks, board_response
+    from .montecarlo import sample_axes
+    from .._response.simulate import Numerics, _scene_peaks, board_response
 
     numerics = Numerics() if numerics is None else numerics
     drops = campaign_drops(scene, standard, mass=mass, height=height)

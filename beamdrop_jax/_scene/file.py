@@ -21,10 +21,10 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from ._beam import ENDS
-from ._checks import DEG, Range, as_float
-from ._plate import Plate
-from ._scene import MAX_ANGLE, SECTIONS, Scene
+from .._board.beam import ENDS
+from .._common.checks import DEG, Range, as_float
+from .._board.plate import Plate
+from .containers import MAX_ANGLE, SECTIONS, Scene
 
 ANGLE_KEYS = {("placement", "angle"), ("drop", "orientation")}
 OPTIONAL_KEYS = {

@@ -1,0 +1,1 @@
+"""Board models behind one interface (`base.py`): the Euler-Bernoulli beam (`beam.py`) and the Kirchhoff plate on edges and mounts (`plate.py`), with the peak search over a board's domain (`search.py`)."""

@@ -1,0 +1,1 @@
+"""Independent peers the package is checked and benchmarked against (OpenSees finite elements). The core never imports them."""

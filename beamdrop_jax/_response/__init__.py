@@ -1,0 +1,1 @@
+"""The board's response to its supports' motion: numerics, the closed form and the diffrax path, the peak search's setup, results, `simulate`, differentiable peak objectives, fields and the superposition tables."""

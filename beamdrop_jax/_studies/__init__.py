@@ -1,0 +1,1 @@
+"""Studies built on single drops: Monte-Carlo, the placement and mount optimisers, sensitivities, test campaigns."""
