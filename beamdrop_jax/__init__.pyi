@@ -41,22 +41,34 @@ from ._studies.mounts import MountResult as MountResult, optimize_mounts as opti
 from ._board.plate import EDGE_CODES as EDGE_CODES, Plate as Plate, PlateModes as PlateModes, plate_modes as plate_modes
 from ._response.pulses import unit_response as unit_response
 from ._board.search import FieldPeak as FieldPeak
-from ._response.simulate import (
+from ._response.results import (
     Fields as Fields,
-    Gauges as Gauges,
-    Numerics as Numerics,
-    Peak as Peak,
     Response as Response,
+    StrainMap as StrainMap,
+)
+from ._board.base import (
+    Gauges as Gauges,
+    Peak as Peak,
+)
+from ._response.numerics import (
+    Numerics as Numerics,
+)
+from ._response.simulate import (
     board_response as board_response,
     drop_motion as drop_motion,
+    simulate as simulate,
+)
+from ._response.objectives import (
     peak_deflection as peak_deflection,
     peak_strain as peak_strain,
     peak_stress as peak_stress,
+)
+from ._response.fields import (
     plate_strain_map as plate_strain_map,
-    StrainMap as StrainMap,
     response_fields as response_fields,
     response_notes as response_notes,
-    simulate as simulate,
+)
+from ._response.setup import (
     support_motion as support_motion,
 )
 from ._studies.placement import (

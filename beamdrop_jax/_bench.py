@@ -19,7 +19,7 @@ from ._common.checks import GRAVITY
 from ._impact.clatter import impact_sequence
 from ._studies.montecarlo import DropDistribution, _evaluate, inner_batch, montecarlo, montecarlo_numerics, sample_axes
 from ._scene.containers import Scene
-from ._response.simulate import Numerics
+from ._response.numerics import Numerics
 from ._response.superposition import _batch_jumps, superposition_table, table_numerics
 from ._common.compile import jit
 

@@ -208,7 +208,7 @@ def cmd_drop(args, output):
     if args.gauge is not None and not 0 <= args.gauge * 1e-3 <= float(scene.board.length):
         raise ValueError(f"--gauge {args.gauge:g} mm is off the board: valid [0, {float(scene.board.length) * 1e3:g}] "
                          "mm from end A")
-    plate = isinstance(scene.board, bd.Plate)
+    plate = scene.board.SURFACE
     if plate:  # a gauge at the centre (where JESD22-B111 measures) and one at --gauge on the centre line
         gauges = [(float(scene.board.length) / 2, 0.0)] + ([(args.gauge * 1e-3, 0.0)] if args.gauge is not None else [])
         board_text = (f"; plate {float(scene.board.length) * 1e3:g} x {float(scene.board.width) * 1e3:g} mm, edges "

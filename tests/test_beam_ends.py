@@ -10,6 +10,8 @@ import pytest
 from scipy.integrate import quad
 
 import beamdrop_jax as bd
+import beamdrop_jax._board.beam  # noqa: F401 - `bd._board...` below, before any call has loaded it
+import beamdrop_jax._response.pulses  # noqa: F401
 
 # Roots b = beta L of the characteristic equations (Blevins, Formulas for natural frequency and mode shape, table 8-1).
 ROOTS = {
@@ -44,11 +46,11 @@ def _textbook_shape(ends, b):
 @pytest.mark.parametrize("ends", bd.ENDS)
 def test_participation_and_shapes_against_quadrature(ends):
     board = bd.Board(ends=ends)
-    p = np.asarray(bd._beam.support_participation(board, 3))
+    p = np.asarray(bd._board.base.support_participation(board, 3))
     x = np.linspace(0.0, 0.1, 7)
-    shapes = np.asarray(bd._beam.mode_shapes(board, jnp.asarray(x), 3))
-    curvature = np.asarray(bd._beam.mode_shapes(board, jnp.asarray(x), 3, curvature=True)
-                           * bd._beam.curvature_scale(board, 3))
+    shapes = np.asarray(bd._board.beam.mode_shapes(board, jnp.asarray(x), 3))
+    curvature = np.asarray(bd._board.beam.mode_shapes(board, jnp.asarray(x), 3, curvature=True)
+                           * bd._board.base.curvature_scale(board, 3))
     for k, b in enumerate(ROOTS[ends]):
         phi = _textbook_shape(ends, b)
         norm = math.sqrt(0.5 / quad(lambda s: phi(s) ** 2, 0, 1, epsabs=1e-13)[0])

@@ -9,6 +9,8 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import beamdrop_jax as bd
+import beamdrop_jax._board.beam  # noqa: F401 - `bd._board...` below, before any call has loaded it
+import beamdrop_jax._response.pulses  # noqa: F401
 from beamdrop_jax._response.diffrax_path import solve_modes
 from references import beam_frequencies, duffing_backbone
 
@@ -62,7 +64,7 @@ def test_closed_form_modal_history_equals_diffrax():
     motion = bd.HalfSine(2.0, 0.5, 4e-4)
     M = 5
     omega = bd.natural_frequencies(board, M)
-    beta = bd._beam.modal_velocity_jumps(bd.Board(), jnp.array([2.0, 0.5]), M)
+    beta = bd._board.base.modal_velocity_jumps(bd.Board(), jnp.array([2.0, 0.5]), M)
     modes, failed = solve_modes(board, motion, M, jnp.asarray(0.01), jnp.ones(M), solver="Dopri8", rtol=1e-12, atol=1e-16)
     assert not bool(failed)
     for t in np.linspace(0.0, 0.01, 23):
@@ -102,7 +104,7 @@ def test_unit_response_and_its_jet_equal_the_duhamel_integral(log_tau, ratio, ze
     tau = 10.0**log_tau
     omega = ratio * math.pi / tau
     t = phase * tau
-    got = bd._board.unit_response_jet(jnp.asarray(t), omega, zeta, tau) if t > 0 else None
+    got = bd._response.pulses.unit_response_jet(jnp.asarray(t), omega, zeta, tau) if t > 0 else None
     scale = (1 / omega, 1.0, omega)  # the size of q, q', q'' after a unit velocity change
     value = float(bd.unit_response(t, omega, zeta, tau))
     assert abs(value - _duhamel(t, omega, zeta, tau, 0)) <= 1e-9 * scale[0]
@@ -179,7 +181,7 @@ def test_refined_peak_matches_dense_grid():
     # Brute force: the same modal series on a grid 40x denser in time and 16x in space.
     M = 8
     omega = bd.natural_frequencies(board, M)
-    beta = bd._beam.modal_velocity_jumps(bd.Board(), jnp.array([4.0, -2.5]), M)
+    beta = bd._board.base.modal_velocity_jumps(bd.Board(), jnp.array([4.0, -2.5]), M)
     t = np.linspace(0, float(res.window), 80001)
     x = np.linspace(0, 0.1, 2001)
     Q = np.asarray(jax.vmap(lambda s: beta * bd.unit_response(s, omega, 0.01, 3e-4))(t))

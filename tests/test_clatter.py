@@ -171,7 +171,7 @@ def test_windowed_train_factors_equal_the_sum_of_shifted_responses(case):
     """The search grid's modal coordinates of a pulse train, built from factors shared between drops (each window
     cut at the next pulse), equal the direct sum of every pulse's shifted unit response at each kept point."""
     from beamdrop_jax._response.pulses import unit_response
-    from beamdrop_jax._response.simulate import ClosedFormModes
+    from beamdrop_jax._response.closed_form import ClosedFormModes
 
     board = bd.Board(damping_ratio=0.03) if case == "damped impulse" else bd.Board()
     omega = bd.natural_frequencies(board, 5)
@@ -204,7 +204,7 @@ def test_search_jets_of_a_pulse_train_equal_the_sum_of_shifted_pulse_jets(case):
     form summed: q against `unit_response`, q' and q'' against `unit_response_jet`, at times inside each pulse,
     at its end, between pulses and long after."""
     from beamdrop_jax._response.pulses import unit_response, unit_response_jet
-    from beamdrop_jax._response.simulate import ClosedFormModes
+    from beamdrop_jax._response.closed_form import ClosedFormModes
 
     board = bd.Board(damping_ratio=0.03) if case == "damped impulse" else bd.Board()
     omega = bd.natural_frequencies(board, 5)
@@ -231,7 +231,7 @@ def test_windowed_train_factors_with_a_duration_per_drop_equal_the_sum_of_shifte
     """Batched drops with their own contact durations (Monte-Carlo over the duration): a short pulse corrected on
     the window's head and a long one corrected everywhere, side by side in one vmapped call."""
     from beamdrop_jax._response.pulses import unit_response
-    from beamdrop_jax._response.simulate import ClosedFormModes
+    from beamdrop_jax._response.closed_form import ClosedFormModes
 
     board = bd.Board()
     omega = bd.natural_frequencies(board, 5)
@@ -256,7 +256,7 @@ def test_windowed_train_factors_with_a_duration_per_drop_equal_the_sum_of_shifte
 def test_windowed_train_factors_have_finite_gradients_on_a_damped_board_long_after_impact():
     """A later pulse's negative lag would overflow e^{lam (lag - duration)} on a damped board; the gradient through
     the masked terms stays finite."""
-    from beamdrop_jax._response.simulate import ClosedFormModes
+    from beamdrop_jax._response.closed_form import ClosedFormModes
 
     board = bd.Board(damping_ratio=0.03)
     omega = bd.natural_frequencies(board, 5)
@@ -357,7 +357,7 @@ def test_every_sequence_obeys_the_laws(theta, height, spin, drift, mu, e):
 def test_random_clattering_drops_have_finite_gradients():
     from test_scene import random_scenes
 
-    from beamdrop_jax._response.simulate import _scene_peaks
+    from beamdrop_jax._response.objectives import _scene_peaks
 
     n = 12
     batch = random_scenes(n, seed=3)

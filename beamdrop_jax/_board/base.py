@@ -11,6 +11,7 @@ solved modes are `PlateModes`). A new model is a new file implementing these cla
 """
 
 import abc
+import math
 from typing import ClassVar
 
 import equinox as eqx
@@ -49,10 +50,20 @@ class AbstractBoard(AbstractModal):
 
     SECTION: ClassVar[str]
     SURFACE: ClassVar[bool]
+    TABLE_DURATIONS: ClassVar[bool]  # whether its superposition table can span contact durations
+
+    @abc.abstractmethod
+    def mirror_symmetric(self) -> bool:
+        """Whether the board maps onto itself under x -> L - x, so a drop's mirror image (A and B swapped) has the
+        mirrored peak (superposition tables search half the jump directions)."""
 
     @abc.abstractmethod
     def modes(self, n_modes: int) -> AbstractModal:
         """The board's lowest `n_modes` modes, solved once per drop and shared by everything after."""
+
+    def file_extras(self) -> dict:
+        """Scene-file keys of the board beyond its float fields and choices (plain Python values)."""
+        return {}
 
     def describe(self) -> str:
         """A short description for reports, e.g. "beam 100 mm, pinned ends"."""
@@ -79,3 +90,48 @@ def modal_velocity_jumps(board: AbstractModal, jumps: Float[Array, "2"], n_modes
 def curvature_scale(board: AbstractModal, n_modes: int) -> Float[Array, " n"]:
     """See `AbstractModal.curvature_scale`."""
     return board.curvature_scale(n_modes)
+
+
+class Peak(eqx.Module):
+    """Peak bending response over the board and the window.
+
+    `stress` (Pa), `strain` (-), where (`x` from end A, m) and when (`t`, s); `deflection` (m, relative to the
+    chord AB) with its own `deflection_x`, `deflection_t`; `search_error`: relative error estimate of the stress
+    peak search. With mid-plane stretching (`Numerics(stretching=True)`) `stress` and `strain` are those of the
+    face in tension, bending plus membrane, and `membrane_stress` (Pa) is the membrane part at the peak (0
+    without stretching). On a plate `stress` and `strain` are the largest principal surface values, `y` and
+    `deflection_y` (m, from the centre line) say where across the width (0 for a beam)."""
+
+    stress: Float[Array, ""]
+    membrane_stress: Float[Array, ""]
+    strain: Float[Array, ""]
+    x: Float[Array, ""]
+    t: Float[Array, ""]
+    deflection: Float[Array, ""]
+    deflection_x: Float[Array, ""]
+    deflection_t: Float[Array, ""]
+    search_error: Float[Array, ""]
+    y: Float[Array, ""]
+    deflection_y: Float[Array, ""]
+
+
+class Gauges(eqx.Module):
+    """Strain gauges on a plate's face z = +h/2 (where the peak is largest in magnitude both faces read the same
+    magnitude): at points (`x`, `y`) (m), over the time grid `t` (s), the rosette components `exx`, `eyy`,
+    `gxy` (engineering shear) and the largest principal strain magnitude `strain`, each (gauges, nt); and per
+    gauge its `peak_strain` and `peak_time` (refined between grid points)."""
+
+    x: Float[Array, " g"]
+    y: Float[Array, " g"]
+    t: Float[Array, " nt"]
+    exx: Float[Array, "g nt"]
+    eyy: Float[Array, "g nt"]
+    gxy: Float[Array, "g nt"]
+    strain: Float[Array, "g nt"]
+    peak_strain: Float[Array, " g"]
+    peak_time: Float[Array, " g"]
+
+    def rosette(self, angle) -> Float[Array, "g nt"]:
+        """The strain a gauge at `angle` (rad from the x axis) reads: exx cos^2 + eyy sin^2 + gxy sin cos."""
+        c, s = math.cos(angle), math.sin(angle)
+        return self.exx * c * c + self.eyy * s * s + self.gxy * s * c

@@ -273,6 +273,17 @@ class Board(AbstractBoard):
     def curvature_scale(self, n_modes: int) -> Float[Array, " n"]:
         return _curvature_scale(self, n_modes)
 
+    TABLE_DURATIONS: ClassVar[bool] = True  # a beam's superposition table spans contact durations
+
+    def mirror_symmetric(self) -> bool:
+        """Whether the board's mode shapes are symmetric or antisymmetric about the middle (its ends alike), so a
+        drop and its mirror image (A and B swapped) have mirrored peaks."""
+        return self.ends in SYMMETRIC_ENDS
+
+    def mode_shapes(self, x, n_modes: int, curvature=False, orders=0):
+        """`mode_shapes(self, ...)`."""
+        return mode_shapes(self, x, n_modes, curvature, orders)
+
     def describe(self) -> str:
         return f"beam {float(self.length) * 1e3:g} mm, {self.ends} ends"
 

@@ -232,6 +232,26 @@ class Plate(AbstractBoard):
     def participation(self, n_modes: int) -> Float[Array, "n 2"]:
         return plate_participation(self, n_modes)
 
+    TABLE_DURATIONS: ClassVar[bool] = False  # a plate's superposition table holds one contact duration
+
+    def mirror_symmetric(self) -> bool:
+        """Whether a concrete plate maps onto itself under x -> L - x (its two ends alike, its mounts in mirror
+        pairs); False for traced plates."""
+        if not is_concrete(self) or self.edges[0] != self.edges[2]:
+            return False
+        if self.mounts is None:
+            return True
+        m = np.asarray(self.mounts)
+        mirror = np.stack([float(self.length) - m[:, 0], m[:, 1]], axis=1)
+        gaps = np.abs(m[:, None, :] - mirror[None, :, :]).max(axis=-1).min(axis=1)
+        return bool(np.all(gaps <= 1e-9 * float(self.length)))
+
+    def file_extras(self) -> dict:
+        extras = {"edges": self.edges}
+        if self.mounts is not None:
+            extras["mounts"] = np.asarray(self.mounts).tolist()
+        return extras
+
     def describe(self) -> str:
         mounts = "" if self.mounts is None else f", {self.mounts.shape[-2]} mounts"
         return (f"plate {float(self.length) * 1e3:g} x {float(self.width) * 1e3:g} mm, edges {self.edges}"

@@ -4,8 +4,10 @@ Each support's normal acceleration is a(t) = dv g(t) with the integral of g equa
 `HalfSine`), or a sampled record (`Record`). Velocities in m/s, accelerations in m/s^2, times in s.
 """
 
+import abc
 import math
 from pathlib import Path
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -20,7 +22,60 @@ def _f(x):
     return jnp.asarray(x, dtype=float_dtype())
 
 
-class Impulse(eqx.Module):
+class AbstractMotion(eqx.Module):
+    """What the response needs from a support motion: the first velocity jumps, the pulses (for the closed
+    form), the forcing (for diffrax), a duration that sets the modes kept, and when the forcing ends.
+
+    `METHODS` lists the `Numerics.method`s that can solve it."""
+
+    METHODS: ClassVar[tuple[str, ...]] = ("closed_form", "diffrax")
+
+    @abc.abstractmethod
+    def acceleration(self, t) -> Float[Array, "2"]:
+        """(aA, aB) at time t, m/s^2."""
+
+    @abc.abstractmethod
+    def first_jumps(self) -> Float[Array, "2"]:
+        """(dvA, dvB) of the first pulse (of the whole record), m/s."""
+
+    @abc.abstractmethod
+    def pulse_duration(self) -> Float[Array, ""]:
+        """The duration of one pulse (of the whole record), s: it sets the modes the response keeps."""
+
+    @property
+    @abc.abstractmethod
+    def end_time(self):
+        """When the forcing ends, s."""
+
+    def window_forcing(self) -> Float[Array, ""]:
+        """How long the forcing lasts after a search window's start (one per pulse), s."""
+        return self.pulse_duration()
+
+    def pulses(self) -> tuple[Float[Array, "K 2"], Float[Array, " K"], Float[Array, ""]]:
+        """(jumps (K, 2), start times (K,), duration) of the half-sine pulses that make the motion, for the
+        closed form (a single pulse: K = 1 at t = 0)."""
+        pulse = self.as_half_sine()
+        return jnp.stack([pulse.dvA, pulse.dvB])[None], jnp.zeros(1, dtype=pulse.duration.dtype), pulse.duration
+
+    def pulse_times(self) -> Float[Array, " K"]:
+        """Start times of the pulses (s); each has a search window of its own."""
+        return self.pulses()[1]
+
+    def forcing(self, modal_jumps, window):
+        """For the diffrax path: (initial modal velocities per unit of `modal_jumps` (a function of (dvA, dvB)),
+        the acceleration function, the forcing's kinks to step onto, the largest step)."""
+        pulse = self.as_half_sine()
+        is_pulse = pulse.duration > 0
+        v0 = jnp.where(is_pulse, 0.0, modal_jumps(jnp.stack([pulse.dvA, pulse.dvB])))
+        # The pulse's end is a kink in the forcing: step onto it exactly (DESIGN: declare it as a jump time).
+        jumps = jnp.where(is_pulse, pulse.duration, window)[None]
+        # A pulse starts at zero force from rest: the initial step-size guess sees no motion and a low-order
+        # solver's error estimate can step over the whole pulse (ImplicitEuler did, returning ~0). Cap the step.
+        dtmax = jnp.where(is_pulse, pulse.duration / 8, window)
+        return v0, pulse.acceleration, jumps, dtmax
+
+
+class Impulse(AbstractMotion):
     """Ideal impulse: the supports' normal velocities jump by `dvA`, `dvB` at t = 0 (the thesis's model)."""
 
     dvA: Float[Array, ""]
@@ -37,8 +92,21 @@ class Impulse(eqx.Module):
     def as_half_sine(self) -> "HalfSine":
         return HalfSine(self.dvA, self.dvB, 0.0)
 
+    def acceleration(self, t) -> Float[Array, "2"]:
+        return self.as_half_sine().acceleration(t)
 
-class HalfSine(eqx.Module):
+    def first_jumps(self) -> Float[Array, "2"]:
+        return jnp.stack([self.dvA, self.dvB])
+
+    def pulse_duration(self) -> Float[Array, ""]:
+        return jnp.zeros_like(self.dvA)
+
+    @property
+    def end_time(self):
+        return jnp.zeros_like(self.dvA)
+
+
+class HalfSine(AbstractMotion):
     """Half-sine pulse of `duration` tau at both supports: a(t) = dv pi/(2 tau) sin(pi t / tau) on [0, tau].
 
     The velocity change of each support is `dvA`, `dvB`; `duration = 0` is the ideal impulse.
@@ -70,6 +138,12 @@ class HalfSine(eqx.Module):
     def as_half_sine(self) -> "HalfSine":
         return self
 
+    def first_jumps(self) -> Float[Array, "2"]:
+        return jnp.stack([self.dvA, self.dvB])
+
+    def pulse_duration(self) -> Float[Array, ""]:
+        return self.duration
+
     def acceleration(self, t) -> Float[Array, "2"]:
         """(aA, aB) at time t, m/s^2."""
         tau = self.duration
@@ -83,10 +157,12 @@ class HalfSine(eqx.Module):
         return self.duration
 
 
-class PulseTrain(eqx.Module):
+class PulseTrain(AbstractMotion):
     """Half-sine pulses of one `duration` starting at `times` (K,) (s, non-decreasing), pulse i changing the
     supports' normal velocities by `dvA[i]`, `dvB[i]` (m/s): the supports' motion in a clattering drop. The board
     is linear, so its response is the sum of each pulse's response shifted to its time. Closed form only."""
+
+    METHODS: ClassVar[tuple[str, ...]] = ("closed_form",)
 
     times: Float[Array, " K"]
     dvA: Float[Array, " K"]
@@ -122,14 +198,28 @@ class PulseTrain(eqx.Module):
     def end_time(self):
         return self.times[-1] + self.duration
 
+    def first_jumps(self) -> Float[Array, "2"]:
+        return jnp.stack([self.dvA[0], self.dvB[0]])
+
+    def pulse_duration(self) -> Float[Array, ""]:
+        return self.duration
+
+    def pulses(self):
+        return jnp.stack([self.dvA, self.dvB], -1), self.times, self.duration
+
+    def forcing(self, modal_jumps, window):
+        raise ValueError('a PulseTrain support motion needs Numerics(method="closed_form")')
+
 
 JESD22_B111_CONDITION_B = (1500.0 * GRAVITY, 0.5e-3)
 """(peak acceleration m/s^2, duration s) of JESD22-B111 service condition B."""
 
 
-class Record(eqx.Module):
+class Record(AbstractMotion):
     """A measured support-acceleration record: samples `t` (s, increasing), `aA`, `aB` (m/s^2), linearly
     interpolated and zero outside [t[0], t[-1]]. Needs the diffrax path (`Numerics(method="diffrax")`)."""
+
+    METHODS: ClassVar[tuple[str, ...]] = ("diffrax",)
 
     t: Float[Array, " n"]
     aA: Float[Array, " n"]
@@ -180,6 +270,24 @@ class Record(eqx.Module):
     @property
     def end_time(self):
         return self.t[-1]
+
+    def first_jumps(self) -> Float[Array, "2"]:
+        return self.velocity_jumps
+
+    def pulse_duration(self) -> Float[Array, ""]:
+        return self.t[-1] - self.t[0]
+
+    def window_forcing(self) -> Float[Array, ""]:
+        return self.end_time
+
+    def pulses(self):
+        raise ValueError('a Record support motion needs Numerics(method="diffrax") (it has no closed form)')
+
+    def pulse_times(self) -> Float[Array, " K"]:
+        return jnp.zeros(1, dtype=self.t.dtype)
+
+    def forcing(self, modal_jumps, window):
+        return jnp.zeros_like(modal_jumps(jnp.zeros(2, dtype=self.t.dtype))), self.acceleration, self.t, None
 
     @property
     def velocity_jumps(self) -> Float[Array, "2"]:

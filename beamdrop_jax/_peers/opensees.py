@@ -230,7 +230,7 @@ def opensees_plate_response(plate, motion: HalfSine | None, window: float, *, ga
     The peer models an undamped plate; in-plane motion is held (it is uncoupled from bending in a flat plate)."""
     from .._board.plate import Plate
 
-    if not isinstance(plate, Plate):
+    if not isinstance(plate, Plate):  # input check: this peer meshes plates only
         raise ValueError("opensees_plate_response takes a bd.Plate")
     if motion is not None and (not isinstance(motion, HalfSine) or float(motion.duration) <= 0):
         raise ValueError("the OpenSees peer takes a HalfSine support motion with duration > 0")

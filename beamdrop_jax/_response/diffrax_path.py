@@ -15,7 +15,6 @@ from jaxtyping import Array, Float
 from .._board.beam import wavenumbers
 
 from .._board.base import modal_velocity_jumps, natural_frequencies, support_participation
-from .._impact.motion import HalfSine, Record
 from .._board.beam import Board
 
 
@@ -28,6 +27,8 @@ class DiffraxModes(eqx.Module):
 
     solution: eqx.Module  # a diffrax.Solution
     n_modes: int = eqx.field(static=True)
+
+    windows = 1  # one search window over the whole solve
 
     def __call__(self, t) -> Float[Array, " n"]:
         t = jnp.clip(t, self.solution.t0, self.solution.t1)
@@ -73,21 +74,7 @@ def solve_modes(
     kappa = wavenumbers(board, n_modes)
     membrane = board.youngs_modulus * board.width * board.thickness / 4.0
 
-    if isinstance(motion, Record):
-        v0 = jnp.zeros(n_modes)
-        accel = motion.acceleration
-        jumps = motion.t
-        dtmax = None
-    else:
-        pulse: HalfSine = motion.as_half_sine()
-        is_pulse = pulse.duration > 0
-        v0 = jnp.where(is_pulse, 0.0, modal_velocity_jumps(board, jnp.stack([pulse.dvA, pulse.dvB]), n_modes)) * force_mask
-        accel = pulse.acceleration
-        # The pulse's end is a kink in the forcing: step onto it exactly (DESIGN: declare it as a jump time).
-        jumps = jnp.where(is_pulse, pulse.duration, window)[None]
-        # A pulse starts at zero force from rest: the initial step-size guess sees no motion and a low-order
-        # solver's error estimate can step over the whole pulse (ImplicitEuler did, returning ~0). Cap the step.
-        dtmax = jnp.where(is_pulse, pulse.duration / 8, window)
+    v0, accel, jumps, dtmax = motion.forcing(lambda j: modal_velocity_jumps(board, j, n_modes) * force_mask, window)
 
     def rhs(t, y, args):
         q, v = y[:n_modes], y[n_modes:]

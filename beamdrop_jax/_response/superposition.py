@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._board.beam import SYMMETRIC_ENDS, mode_shapes
+from .._board.beam import mode_shapes
 
 from .._board.base import support_participation
 from .pulses import unit_response, unit_response_jet
@@ -42,7 +42,11 @@ from .._impact.motion import HalfSine
 from .._board.plate import Plate
 from .._board.beam import Board
 from .._scene.containers import Scene, scene_flags
-from .simulate import PLATE_MEASURES, Numerics, _plate_points, _plate_searches, _search, _setup, drop_motion
+from .surface import PLATE_MEASURES, _plate_points, _plate_searches
+from .numerics import Numerics
+from .line import _search
+from .setup import _setup
+from .simulate import drop_motion
 from .._common.compile import filter_jit, jit
 
 _BUILD_BATCH = 16
@@ -225,21 +229,6 @@ class PlateTable(eqx.Module):
         return (*self.response(scene.board, jumps, scene.contact.duration, flags), flags)
 
 
-def _mirror_symmetric(plate: Plate) -> bool:
-    """Whether a concrete plate maps onto itself under x -> L - x (its two ends alike, its mounts in mirror pairs);
-    False for traced plates."""
-    from .._common.checks import is_concrete
-
-    if not is_concrete(plate) or plate.edges[0] != plate.edges[2]:
-        return False
-    if plate.mounts is None:
-        return True
-    m = np.asarray(plate.mounts)
-    mirror = np.stack([float(plate.length) - m[:, 0], m[:, 1]], axis=1)
-    gaps = np.abs(m[:, None, :] - mirror[None, :, :]).max(axis=-1).min(axis=1)
-    return bool(np.all(gaps <= 1e-9 * float(plate.length)))
-
-
 @filter_jit
 def _build_plate(plate: Plate, duration, numerics: Numerics, n_angles: int, symmetric: bool):
     """`PlateTable` contents: the unit-jump fields on the search grid once, each direction's measures as their
@@ -314,7 +303,7 @@ def table_peaks(table: SuperpositionTable, samples: Scene, axes):
 def superposes(numerics: Numerics, board, durations=None) -> str | None:
     """Why drops of `board` with `numerics` (and contact durations spanning `durations` = (shortest, longest),
     when they vary) cannot share a table (None when they can)."""
-    if durations is not None and isinstance(board, Plate):
+    if durations is not None and not board.TABLE_DURATIONS:
         return (f"the contact durations vary ({durations[0]:g} to {durations[1]:g} s) and a plate's table holds one "
                 "duration")
     if numerics.method != "closed_form":
@@ -346,7 +335,7 @@ def _mirror_sources(n_angles: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 @filter_jit
 def _build(board: Board, durations, numerics: Numerics, n_angles: int):
     M = numerics.computed_modes
-    if board.ends in SYMMETRIC_ENDS:
+    if board.mirror_symmetric():
         searched, source, mirrored = _mirror_sources(n_angles)
     else:  # no mirror symmetry: every direction is searched
         searched = source = np.arange(n_angles)
@@ -461,7 +450,7 @@ def _cells(board, unit, rows, x, t, rates, omega, zeta, durations):
 def _kept_modes(scene: Scene):
     """The modes `simulate` keeps for a scene's pulse (one compiled program: op by op, a plate's eigensolve took
     0.25 s)."""
-    from .simulate import _mode_counts, support_motion
+    from .setup import _mode_counts, support_motion
 
     return _mode_counts(scene.board, support_motion(scene, jnp.ones(2)), Numerics())[0]
 
@@ -476,7 +465,7 @@ def table_numerics(scene: Scene, durations=None) -> Numerics:
     if durations is not None:
         scene = scene.replace(**{"contact.duration": float(min(durations))})
     used = _kept_modes(scene)
-    if isinstance(scene.board, Plate):
+    if scene.board.SURFACE:
         # A plate's grid is 2 points per basis function each way (625 points for 12 x 12): 4 points per period
         # and 3 candidates build the JESD22 board's table in half the time of 6 and 6, with no larger errors (over
         # 256 random drops the stress within 1.5e-4 below a 16-points-per-period search, and up to 4.4e-4 above
@@ -516,8 +505,8 @@ def superposition_table(scene: Scene, numerics: Numerics | None = None, n_angles
     if not (isinstance(n_angles, int) and n_angles >= 8 and n_angles % 4 == 0):
         raise ValueError(f"n_angles = {n_angles!r}; valid: a multiple of 4, >= 8 (the build uses the board's mirror "
                          "symmetry over quarters of the pseudo-angle)")
-    if isinstance(scene.board, Plate):
+    if scene.board.SURFACE:  # the table follows the board's domain (a surface: one measure per quantity)
         fields, x, y, t, flags = _build_plate(scene.board, nodes[0], numerics, n_angles,
-                                              _mirror_symmetric(scene.board))
+                                              scene.board.mirror_symmetric())
         return PlateTable(fields, x, y, t, nodes, flags, law=numerics.law)
     return SuperpositionTable(nodes, *_build(scene.board, nodes, numerics, n_angles), law=numerics.law)

@@ -258,12 +258,13 @@ def check_scene(scene: Scene) -> None:
     has any flagged problem (no-op under tracing)."""
     if not is_concrete(scene):
         return
-    if not np.any(np.asarray(_scene_flags_program(scene))):  # one compiled program, not one per operation
+    flags = np.asarray(_scene_flags_program(scene))  # one compiled program, not one per operation
+    if not np.any(flags):
         return
     for section in SECTIONS:
         getattr(scene, section).__check_init__()
     _check_fits(scene)
-    raise_if_flagged(flags, "invalid scene")
+    raise_if_flagged(np.bitwise_or.reduce(flags.ravel()), "invalid scene")
 
 
 _scene_flags_program = filter_jit(scene_flags)

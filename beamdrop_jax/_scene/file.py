@@ -219,8 +219,7 @@ def scene_to_dict(scene: Scene) -> dict:
     for section in SECTIONS:
         module = getattr(scene, section)
         cls = type(module)
-        if isinstance(module, Plate):
-            section = "plate"
+        section = getattr(module, "SECTION", section)  # a board names its own section
         fields = {}
         for name in cls.RANGES:
             value = np.asarray(jnp.asarray(getattr(module, name))).tolist()
@@ -231,10 +230,8 @@ def scene_to_dict(scene: Scene) -> dict:
         for (s, name) in CHOICE_KEYS:
             if s == section:
                 fields[name] = getattr(module, name)
-        if isinstance(module, Plate):
-            fields["edges"] = module.edges
-            if module.mounts is not None:
-                fields["mounts"] = np.asarray(module.mounts).tolist()
+        if section == getattr(module, "SECTION", None):
+            fields |= module.file_extras()
         out[section] = fields
     return out
 

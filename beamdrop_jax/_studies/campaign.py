@@ -235,7 +235,9 @@ def campaign(scene, standard: str, numerics=None, *, mass: float | None = None, 
     iec-60068-2-31, jesd22-b111); `mass`, `height` as in `campaign_drops`. How each 3-D drop maps onto the plane
     is in this module's notes."""
     from .montecarlo import sample_axes
-    from .._response.simulate import Numerics, _scene_peaks, board_response
+    from .._response.numerics import Numerics
+    from .._response.objectives import _scene_peaks
+    from .._response.simulate import board_response
 
     numerics = Numerics() if numerics is None else numerics
     drops = campaign_drops(scene, standard, mass=mass, height=height)

@@ -22,7 +22,9 @@ from .._common.checks import float_dtype
 from .._common.checks import Flag
 from .._board.plate import Plate
 from .._scene.containers import Scene, check_scene
-from .._response.simulate import Numerics, _scene_peaks, drop_motion
+from .._response.numerics import Numerics
+from .._response.objectives import _scene_peaks
+from .._response.simulate import drop_motion
 from .._response.superposition import superposes, superposition_table, table_numerics, table_peaks
 from .._common.compile import filter_jit
 
@@ -258,7 +260,7 @@ def _evaluate(samples, axes, numerics, grid_deflection=False, inner=None):
     Beams compile with YNNPACK's product fusions only (`_compile.compiler_options`; a clattering drop 54 -> 36 us);
     plates with the package's usual options, under which their searches were validated (the other rounding moved
     a plate's Monte-Carlo peaks by up to 4e-6 from each drop's own search)."""
-    compiled = _evaluate_plates if isinstance(samples.board, Plate) else _evaluate_beams
+    compiled = _evaluate_plates if samples.board.SURFACE else _evaluate_beams  # validated options per domain
     return compiled(samples, axes, numerics, grid_deflection, inner)
 
 
@@ -389,7 +391,7 @@ def montecarlo(
         # Grids live only `inner_batch` drops at a time, so a chunk is memory-light: large chunks amortise the
         # per-chunk transfer and dispatch.
         batch = min(n, 16384) if batch_size is None else int(batch_size)
-        inner = inner_batch(numerics, batch, n_dev, plate=isinstance(scene.board, Plate))
+        inner = inner_batch(numerics, batch, n_dev, plate=scene.board.SURFACE)
         evaluate = lambda chunk, axes: _evaluate(chunk, axes, numerics, not refine_deflection, inner)  # noqa: E731
     batch = -(-batch // inner) * inner
     axes = sample_axes(samples, scene)

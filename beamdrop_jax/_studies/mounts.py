@@ -18,7 +18,10 @@ from .._common.checks import float_dtype
 from .placement import OBJECTIVES, drop_set, risk
 from .._board.plate import Plate
 from .._scene.containers import Scene, check_scene
-from .._response.simulate import Numerics, _gauge_points, _scene_peaks, _simulate
+from .._response.numerics import Numerics
+from .._response.setup import _gauge_points
+from .._response.objectives import _scene_peaks
+from .._response.simulate import _simulate
 from .._common.compile import filter_jit
 
 
@@ -100,7 +103,7 @@ def optimize_mounts(
     """
     import optax
 
-    if not (isinstance(scene.board, Plate) and scene.board.mounts is not None):
+    if getattr(scene.board, "mounts", None) is None:
         raise ValueError("optimize_mounts moves the mounts of a plate: the scene's board must be a bd.Plate with mounts")
     if objective not in OBJECTIVES:
         raise ValueError(f"objective = {objective!r}; valid: {', '.join(OBJECTIVES)}")

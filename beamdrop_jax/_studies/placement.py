@@ -19,7 +19,8 @@ from tqdm import tqdm
 from .._common.checks import float_dtype
 from .._common.checks import Flag, combine
 from .._scene.containers import Placement, Scene, check_scene, scene_flags
-from .._response.simulate import Numerics, peak_stress
+from .._response.numerics import Numerics
+from .._response.objectives import peak_stress
 from .._common.compile import filter_jit
 
 OBJECTIVES = ("mean", "max", "cvar")

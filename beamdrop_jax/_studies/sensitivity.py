@@ -9,7 +9,11 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._scene.containers import Scene, _section_classes
-from .._response.simulate import Numerics, _plate_points, _setup, drop_motion, peak_deflection, peak_strain, peak_stress
+from .._response.numerics import Numerics
+from .._response.surface import _plate_points
+from .._response.setup import _setup
+from .._response.simulate import drop_motion
+from .._response.objectives import peak_deflection, peak_strain, peak_stress
 from .._board.beam import mode_shapes
 from .._board.search import field_on_grid, near_mounts
 from .._board.plate import Plate, surface_stress
@@ -97,7 +101,7 @@ def _smooth(scene, numerics, temperature):
     # The grid is the answer here, not a search's starts: it must carry gradients (`refine` drops them).
     S = _setup(board, motion, dataclasses.replace(numerics, refine=False), with_check=False)
     mask = S.curvature * (S.k <= S.used)
-    if isinstance(board, Plate):
+    if board.SURFACE:
         _, _, points, shapes = _plate_points(board, S.modes)
         _, kxx, kyy, kxy = (field_on_grid(mask, S.Q, v) for v in shapes)
         stress = jnp.where(near_mounts(board, points)[:, None], 0.0, surface_stress(board, kxx, kyy, kxy))

@@ -1,0 +1,132 @@
+"""A drop's response as fields: deflection, strain and stress over (x, t) along a beam (`response_fields`), a plate's strain map at one time, and the notes a reader of the numbers should know."""
+
+import dataclasses
+import functools
+import math
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Complex, Float, Int
+
+from .._board.base import curvature_scale
+from .._board.beam import mode_shapes, wavenumbers
+from .._board.plate import surface_strain
+from .._board.search import field_on_grid
+from .._common.checks import Range, as_float, as_int, float_dtype, require
+from .._common.compile import filter_jit
+from .._scene.containers import Scene
+from .numerics import Numerics
+from .results import Fields, Response, StrainMap
+from .setup import _modal_solution, _span, _time_grid
+from .simulate import drop_motion, simulate
+
+
+def response_fields(scene: Scene, numerics: Numerics | None = None, nx: int = 101, nt: int = 801,
+                    x=None) -> Fields:
+    """Deflection, strain and stress over (x, t) for a scene, with the modes `simulate` reports. `x`: positions
+    from end A (m; default `nx` points over the board), e.g. strain gauges. With several impacts, `nt` times follow
+    each impact (the window after each, as in the peak search).
+
+    Strain and stress are signed: those of the face on the board normal's side (-(h/2) u_xx; positive is tension),
+    plus the membrane strain with `Numerics(stretching=True)`.
+    """
+    numerics = Numerics() if numerics is None else numerics
+    if scene.board.SURFACE:
+        raise ValueError("response_fields reads a beam along x; for a plate use bd.plate_strain_map (a map at one "
+                         "time) and simulate(..., gauges=((x, y), ...)) (histories at points)")
+    as_int(nx, "nx", 2)
+    as_int(nt, "nt", 2)
+    response = simulate(scene, numerics)
+    length = float(scene.board.length)
+    if x is None:
+        x = as_float(np.linspace(0.0, 1.0, nx) * length, "x")  # on the host: no program to compile
+    else:
+        x = as_float(x, "x", f"positions on the board, [0, {length:g}] m").reshape(-1)
+        require(x, "x", 0.0, length, unit="m")
+    return _fields(scene, response, numerics, x, nt)
+
+
+@filter_jit
+def _fields(scene, response, numerics, x, nt):
+    board = scene.board
+    M = numerics.computed_modes
+    motion = drop_motion(scene, numerics)[0]
+    k = jnp.arange(1, M + 1)
+    used = response.n_modes
+    window, t = _time_grid(board, motion, numerics, nt)
+    modal, _ = _modal_solution(board, motion, numerics, window, (k <= used).astype(float_dtype()))
+    Q = modal.grid_factors(t)
+    mask = (k <= used).astype(float_dtype())
+    u = field_on_grid(mask, Q, mode_shapes(board, x, M))
+    curvature = field_on_grid(curvature_scale(board, M) * mask, Q, mode_shapes(board, x, M, True))
+    strain = -board.thickness / 2 * curvature
+    if numerics.stretching:
+        scale, R = Q
+        strain = strain + ((R * scale * mask) ** 2 @ wavenumbers(board, M) ** 2 / 4)[None, :]
+    return Fields(x, t, u, strain, board.youngs_modulus * strain)
+
+
+def response_notes(scene: Scene, response: Response) -> list[str]:
+    """What a reader of a drop's numbers should know: where the model's assumptions stop holding or the answer is
+    not converged (an empty list when nothing needs saying)."""
+    notes = []
+    board, peak = scene.board, response.peak
+    if float(scene.contact.duration) == 0.0:
+        notes.append(f"ideal impulse (contact duration 0): the peak grows with the mode count and never converges "
+                     f"(stopped at {int(response.n_modes)} modes); give Contact.duration a physical value "
+                     "(0.05-1 ms)")
+    elif not bool(response.converged):
+        notes.append(f"not converged: {int(response.check_modes)} modes change the peak by "
+                     f"{float(response.error_estimate) * 100:.2g} % (Numerics.convergence_rtol = "
+                     "0.1 %); " + (
+                         # A check with fewer modes means the count hit its cap.
+                         "raise Numerics.max_modes" if int(response.check_modes) < int(response.n_modes)
+                         else "raise Numerics.pulse_modes (modes up to f_k x duration >= 2 by default)"))
+    if float(board.youngs_modulus) < 1e6 or float(board.thickness) > 0.05:
+        notes.append(f"the board is not an engineering board (E = {float(board.youngs_modulus):.4g} Pa, thickness "
+                     f"{float(board.thickness):.4g} m): the thesis scene's nondimensional units, so stresses in MPa "
+                     "and strains in microstrain mean nothing physical here")
+    elif float(peak.strain) > 0.01:
+        notes.append(f"peak strain {float(peak.strain) * 100:.3g} % is beyond the elastic range of board materials")
+    if float(peak.deflection) > float(board.thickness):
+        notes.append(f"peak deflection {float(peak.deflection) / float(board.thickness):.2g} x the thickness: "
+                     "linear (small-deflection) theory overestimates it; mid-plane stretching matters "
+                     + ("(not modelled for plates yet)" if board.SURFACE
+                        else "(Numerics(method=\"diffrax\", stretching=True))"))
+    return notes
+
+
+def plate_strain_map(scene: Scene, response: Response, numerics: Numerics | None = None, t=None, nx: int = 133,
+                     ny: int = 78) -> StrainMap:
+    """The largest principal surface strain over a plate scene's board at time `t` (s; default: the peak stress's
+    time), with the modes `response` (from `simulate(scene, numerics)`) used."""
+    numerics = Numerics() if numerics is None else numerics
+    if not scene.board.SURFACE:
+        raise ValueError("plate_strain_map needs a scene whose board is a bd.Plate")
+    as_int(nx, "nx", 2)
+    as_int(ny, "ny", 2)
+    t = response.peak.t if t is None else as_float(t, "t", Range(0.0, unit="s"))
+    return _strain_map(scene, numerics, response.n_modes, t, nx, ny)
+
+
+@filter_jit
+def _strain_map(scene, numerics, used, t, nx, ny):
+    plate = scene.board
+    M = numerics.computed_modes
+    motion = drop_motion(scene, numerics)[0]
+    mask = (jnp.arange(1, M + 1) <= used).astype(float_dtype())
+    modes = plate.modes(M)
+    modal, _ = _modal_solution(modes, motion, numerics, _span(modes, motion, numerics), mask)
+    x = jnp.linspace(0.0, 1.0, nx) * plate.length
+    y = jnp.linspace(-0.5, 0.5, ny) * plate.width
+    X, Y = jnp.meshgrid(x, y, indexing="ij")
+    _, kxx, kyy, kxy = (v @ (modal(t) * mask) for v in modes.shapes(X, Y))
+    strain = surface_strain(plate, kxx, kyy, kxy)
+    if plate.mounts is not None:
+        inside = jnp.any(jnp.hypot(X[..., None] - plate.mounts[:, 0], Y[..., None] - plate.mounts[:, 1])
+                         < plate.mount_radius, axis=-1)
+        strain = jnp.where(inside, jnp.nan, strain)
+    return StrainMap(x, y, strain, jnp.asarray(t))

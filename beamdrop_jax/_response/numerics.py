@@ -1,0 +1,107 @@
+"""How the board's response is computed: `Numerics`, static configuration of modes, grids, solver and search."""
+
+import dataclasses
+import functools
+import math
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Complex, Float, Int
+
+from .._common.checks import Range, as_int, as_real, require
+from .._impact.routh import LAWS
+from .diffrax_path import SOLVERS
+
+
+METHODS = ("closed_form", "diffrax")
+
+
+class Numerics(eqx.Module):
+    """How to compute the board's response (all fields are static configuration).
+
+    - `method`: `"closed_form"` (exact modal response to an impulse or half-sine, damped or not) or `"diffrax"`
+      (numerical; needed for a `Record` and for `stretching`).
+    - `solver`, `rtol`, `atol`, `max_steps`: the diffrax solver by name (Tsit5, Dopri5, Dopri8, Kvaerno3,
+      Kvaerno5, ImplicitEuler, Heun, Bosh3) and its PID controller.
+    - `n_modes`: `None` picks the count from the scene (modes up to f_k tau >= `pulse_modes`, at least
+      `min_modes`, at most `max_modes`) and checks it against twice as many, or `max_modes` when twice as many
+      exceed it (half as many only when the count is at the cap);
+      an int means exactly modes 1..n_modes, checked against half as many.
+    - `window`: time window (s); `None` is the pulse duration plus one fundamental period. With several impacts
+      it is the window searched after each impact (the free vibration between impacts repeats with the
+      fundamental period when the axial force is 0, so one period after each pulse holds the peak).
+    - `points_per_period`: time-grid points per period of the highest computed mode (N = 0 estimate);
+      `x_points_per_mode`: spatial grid points per computed mode.
+    - `refine`: Newton refinement of the grid's best `candidates` peaks (`newton_steps` each).
+    - `convergence_rtol`: `converged` when the mode check changes the peak stress by less than this.
+    - `stretching`: nonlinear mid-plane stretching for axially immovable supports (diffrax only).
+    - `law`: restitution law of the housing impact.
+    - `max_impacts`: impacts followed (1: the first corner impact only, the thesis's model; more: the housing
+      flies freely after each impact and clatters onto the next corner, closed form only). `rest_speed` (m/s):
+      a next impact approaching slower than this ends the sequence.
+    """
+
+    method: str = eqx.field(static=True, default="closed_form")
+    solver: str = eqx.field(static=True, default="Tsit5")
+    n_modes: int | None = eqx.field(static=True, default=None)
+    max_modes: int = eqx.field(static=True, default=16)
+    min_modes: int = eqx.field(static=True, default=4)
+    pulse_modes: float = eqx.field(static=True, default=2.0)
+    window: float | None = eqx.field(static=True, default=None)
+    rtol: float = eqx.field(static=True, default=1e-8)
+    atol: float = eqx.field(static=True, default=1e-12)
+    max_steps: int = eqx.field(static=True, default=16384)
+    points_per_period: int = eqx.field(static=True, default=4)
+    x_points_per_mode: int = eqx.field(static=True, default=4)
+    refine: bool = eqx.field(static=True, default=True)
+    candidates: int = eqx.field(static=True, default=4)
+    newton_steps: int = eqx.field(static=True, default=6)
+    convergence_rtol: float = eqx.field(static=True, default=1e-3)
+    stretching: bool = eqx.field(static=True, default=False)
+    law: str = eqx.field(static=True, default="poisson")
+    max_impacts: int = eqx.field(static=True, default=1)
+    rest_speed: float = eqx.field(static=True, default=0.02)
+
+    def __check_init__(self):
+        def bad(field, value, valid):
+            raise ValueError(f"Numerics.{field} = {value!r}; valid: {valid}")
+
+        for name, choices in (("method", METHODS), ("solver", SOLVERS), ("law", LAWS)):
+            if not (isinstance(getattr(self, name), str) and getattr(self, name) in choices):
+                bad(name, getattr(self, name), ", ".join(choices))
+        for name, flag in (("refine", self.refine), ("stretching", self.stretching)):
+            if not isinstance(flag, bool):
+                bad(name, flag, "True or False")
+        if self.n_modes is not None:
+            as_int(self.n_modes, "Numerics.n_modes", 1, 512)
+        as_int(self.max_modes, "Numerics.max_modes", 2, 512)
+        as_int(self.min_modes, "Numerics.min_modes", 1, self.max_modes)
+        for name in ("points_per_period", "x_points_per_mode", "candidates", "max_steps", "max_impacts"):
+            as_int(getattr(self, name), f"Numerics.{name}", 1)
+        as_int(self.newton_steps, "Numerics.newton_steps", 0)
+        if self.window is not None:
+            as_real(self.window, "Numerics.window", Range(0.0, 10.0, lo_open=True, unit="s"))
+        for name in ("rtol", "atol", "convergence_rtol"):
+            as_real(getattr(self, name), f"Numerics.{name}", Range(0.0, 1.0, lo_open=True))
+        as_real(self.pulse_modes, "Numerics.pulse_modes", Range(0.0, 100.0, lo_open=True))
+        as_real(self.rest_speed, "Numerics.rest_speed", Range(0.0, lo_open=True, unit="m/s"))
+        if self.max_impacts > 1 and self.method != "closed_form":
+            raise ValueError(
+                f"Numerics.max_impacts = {self.max_impacts} needs Numerics.method = \"closed_form\": the flight "
+                "between impacts spans thousands of board periods, which the closed form skips exactly"
+            )
+        if self.stretching and self.method != "diffrax":
+            raise ValueError('Numerics.stretching = True needs Numerics.method = "diffrax" (it has no closed form)')
+
+    @property
+    def computed_modes(self) -> int:
+        return self.max_modes if self.n_modes is None else self.n_modes
+
+    def grid_shape(self) -> tuple[int, int]:
+        """(nx, nt): with N = 0 mode k makes k^2 oscillations per fundamental period, so the top mode needs about
+        M^2 + a few periods over the default window."""
+        M = self.computed_modes
+        return self.x_points_per_mode * M + 1, self.points_per_period * (M * M + 8) + 1

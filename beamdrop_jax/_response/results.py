@@ -1,0 +1,119 @@
+"""What a drop or a board response reports: `Response` (with the board's `Peak` and `Gauges`), `Fields`, `StrainMap`."""
+
+import dataclasses
+import functools
+import math
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Complex, Float, Int
+
+from .._board.base import Gauges, Peak
+from .._common.checks import Flag, is_concrete
+from .._impact.clatter import Impacts
+from .._impact.kinematics import HousingImpact
+from .._impact.routh import ImpactResult
+
+
+class Response(eqx.Module):
+    """What a drop does to the board.
+
+    - `impulse`: the housing's first `ImpactResult` (None from `board_response`); `housing`: its `HousingImpact`.
+    - `impacts`: every impact of the drop (`Impacts`; one unless `Numerics.max_impacts` > 1).
+    - `support_jumps`: (dvA, dvB) of the first impact, m/s, normal to the board.
+    - `peak`: a `Peak`.
+    - `frequencies`: natural frequencies of the computed modes, Hz.
+    - `n_modes`: modes in the reported peak; `check_modes`: modes of the convergence check.
+    - `error_estimate`: |peak(n_modes) - peak(check_modes)| / peak(n_modes), relative, for the stress.
+    - `converged`: `error_estimate <= Numerics.convergence_rtol`.
+    - `window`: time window, s (to one fundamental period after the last impact's pulse). `flags`: `Flag` mask (0 = valid; otherwise the peak fields are NaN).
+    - `gauges`: strain gauge readings (`Gauges`) at the points asked for (plates; None otherwise); `is_plate`.
+    """
+
+    impulse: ImpactResult | None
+    housing: HousingImpact | None
+    impacts: Impacts | None
+    support_jumps: Float[Array, "2"]
+    peak: Peak
+    frequencies: Float[Array, " n"]
+    n_modes: Int[Array, ""]
+    check_modes: Int[Array, ""]
+    error_estimate: Float[Array, ""]
+    converged: Bool[Array, ""]
+    window: Float[Array, ""]
+    flags: Int[Array, ""]
+    gauges: "Gauges | None" = None
+    is_plate: bool = eqx.field(static=True, default=False)
+
+    def summary(self) -> dict:
+        """The numbers of one response, units in the keys (JSON-ready with `plain`; `repr` prints them)."""
+        from .._impact.routh import ImpactMode
+        from .._common.report import plain
+
+        if jnp.ndim(self.peak.stress) or not is_concrete(self):
+            raise ValueError("Response.summary() needs one concrete response (index a batched one first)")
+        r = jax.device_get(self)  # NumPy from here: arithmetic on the host, no small programs to compile
+        p = r.peak
+        out = {}
+        if r.impulse is not None:
+            flat = r.housing is not None and bool(r.housing.flat)
+            out["impulse_Ns"] = r.impulse.P
+            out["contact_mode"] = "flat landing (translation)" if flat else ImpactMode(int(r.impulse.mode)).label
+        if r.impacts is not None and int(r.impacts.count) > 1:
+            out["impacts"] = int(r.impacts.count)
+        out |= {
+            "support_jumps_m_per_s": r.support_jumps,
+            "frequencies_Hz": r.frequencies[:4],
+            "n_modes": r.n_modes,
+            "check_modes": r.check_modes,
+            "peak_stress_MPa": p.stress / 1e6,
+            "peak_strain_microstrain": p.strain * 1e6,
+            **({"peak_membrane_stress_MPa": p.membrane_stress / 1e6} if float(p.membrane_stress) else {}),
+            "peak_stress_x_mm": p.x * 1e3,
+            **({"peak_stress_y_mm": p.y * 1e3} if r.is_plate else {}),
+            "peak_stress_t_ms": p.t * 1e3,
+            "peak_deflection_mm": p.deflection * 1e3,
+            "peak_deflection_x_mm": p.deflection_x * 1e3,
+            **({"peak_deflection_y_mm": p.deflection_y * 1e3} if r.is_plate else {}),
+            "peak_deflection_t_ms": p.deflection_t * 1e3,
+            "converged": r.converged,
+            "mode_check_relative_change": r.error_estimate,
+            "window_ms": r.window * 1e3,
+            "flags": Flag.describe(r.flags),
+        }
+        if r.gauges is not None:
+            out["gauge_peak_strain_microstrain"] = r.gauges.peak_strain * 1e6
+            out["gauge_peak_time_ms"] = r.gauges.peak_time * 1e3
+        return plain(out)
+
+
+    def __repr__(self) -> str:
+        from .._common.report import summary_text
+
+        try:
+            return summary_text(self.summary(), "Response (x from end A, t from the first impact)")
+        except ValueError:
+            return eqx.tree_pformat(self)
+
+
+class Fields(eqx.Module):
+    """Deflection (m), strain (-) and stress (Pa) on a grid: arrays of shape (len(x), len(t))."""
+
+    x: Float[Array, " nx"]
+    t: Float[Array, " nt"]
+    deflection: Float[Array, "nx nt"]
+    strain: Float[Array, "nx nt"]
+    stress: Float[Array, "nx nt"]
+
+
+class StrainMap(eqx.Module):
+    """Largest principal surface strain over a plate at one time: `x` (nx,), `y` (ny,) (m), `strain` (nx, ny)
+    (NaN inside the mount discs), `t` (s)."""
+
+    x: Float[Array, " nx"]
+    y: Float[Array, " ny"]
+    strain: Float[Array, "nx ny"]
+    t: Float[Array, ""]
