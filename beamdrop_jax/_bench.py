@@ -240,6 +240,46 @@ def scipy_peak_stress(scene: Scene, jumps, method="RK45", n_modes=6, rtol=1e-8, 
 LEVELS = ("tiny", "quick", "full")
 
 
+def _peer_rows(add, scene, drops, axes, samples, tiled, peer_modes, peer_seconds, time_peer, big, whole_repeats, n,
+               tiny, quick, repeats):
+    """The peers' rows of `run_bench` on the fixed-duration workload: the NumPy closed form, the NumPy
+    superposition and SciPy's `solve_ivp`."""
+    for m in peer_modes:
+        sec = min(peer_seconds[m], time_peer(m))
+        add("peer: numpy closed form", f"n_modes={m} grid max, {tiled.size} drops", sec,
+            numpy_peak_stress(scene, samples, m))
+    # The same superposition in NumPy, on the same number of drops as the superposed row, in chunks of 65,536 (as
+    # `montecarlo`'s; a whole 2^20 array per operation was slower); its table is given, not built, in its time.
+    table = superposition_table(scene)
+    many = np.resize(np.asarray(drops.drop.orientation), big)
+
+    def numpy_superposed():
+        return [numpy_superposed_peak_stress(scene, many[i:i + 65536], table) for i in range(0, big, 65536)]
+
+    add("peer: numpy superposed", f"given table, {big} drops", _median_time(numpy_superposed, whole_repeats) / big,
+        numpy_superposed_peak_stress(scene, samples, table))
+
+    n_scipy = min(n, 1 if tiny else 8 if quick else 32)
+    sub = jax.tree_util.tree_map(lambda v, a: v if a is None else v[:n_scipy], drops, axes)
+    jumps, _ = _batch_jumps(sub, axes, "poisson")
+    for method in ("RK45", "Radau"):
+        t0 = time.perf_counter()
+        vals = [scipy_peak_stress(scene, jumps[i], method)[0] for i in range(n_scipy)]
+        add("peer: scipy solve_ivp", f"{method} rtol=1e-8 n_modes=6", (time.perf_counter() - t0) / n_scipy, vals)
+
+
+def _print_plates(plates: dict) -> None:
+    """`run_bench`'s progress line for `plate_bench`."""
+    print(f"  plate drop (jesd22-board, 4 screws): {plates['plate_drop_ms']:.3g} ms, beam drop (default) "
+          f"{plates['beam_drop_ms']:.3g} ms in the same run ({plates['plate_over_beam']:.3g}x)\n"
+          f"  superposed Monte-Carlo, {plates['montecarlo_drops']} drops, table build included: plate "
+          f"{plates['plate_superposed_us_per_drop']:.3g} us/drop ({plates['plate_superposed_drops_per_s']:.3g} "
+          f"drops/s), beam {plates['beam_superposed_us_per_drop']:.3g} us/drop; the plate's direct path "
+          f"{plates['plate_direct_us_per_drop']:.3g} us/drop ({plates['plate_direct_over_superposed']:.3g}x); "
+          "max error against a dense per-drop search (stress, strain, deflection): "
+          + ", ".join(f"{v:.2g}" for v in plates["plate_superposed_max_error"].values()), flush=True)
+
+
 def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drops=None, repeats=None,
               progress=True) -> list[dict]:
     """Run the benchmark at `level` ("tiny": a smoke test of every part; "quick": < 5 min on 2 cores; "full");
@@ -369,28 +409,8 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
             sec, vals = _jax_method(sub, axes, num, 1)
             add("diffrax", f"{solver} rtol={rtol:g} n_modes=6", sec, vals)
 
-    for m in peer_modes:
-        sec = min(peer_seconds[m], time_peer(m))
-        add("peer: numpy closed form", f"n_modes={m} grid max, {tiled.size} drops", sec,
-            numpy_peak_stress(scene, samples, m))
-    # The same superposition in NumPy, on the same number of drops as the superposed row, in chunks of 65,536 (as
-    # `montecarlo`'s; a whole 2^20 array per operation was slower); its table is given, not built, in its time.
-    table = superposition_table(scene)
-    many = np.resize(np.asarray(drops.drop.orientation), big)
-
-    def numpy_superposed():
-        return [numpy_superposed_peak_stress(scene, many[i:i + 65536], table) for i in range(0, big, 65536)]
-
-    add("peer: numpy superposed", f"given table, {big} drops", _median_time(numpy_superposed, whole_repeats) / big,
-        numpy_superposed_peak_stress(scene, samples, table))
-
-    n_scipy = min(n, 1 if tiny else 8 if quick else 32)
-    sub = jax.tree_util.tree_map(lambda v, a: v if a is None else v[:n_scipy], drops, axes)
-    jumps, _ = _batch_jumps(sub, axes, "poisson")
-    for method in ("RK45", "Radau"):
-        t0 = time.perf_counter()
-        vals = [scipy_peak_stress(scene, jumps[i], method)[0] for i in range(n_scipy)]
-        add("peer: scipy solve_ivp", f"{method} rtol=1e-8 n_modes=6", (time.perf_counter() - t0) / n_scipy, vals)
+    _peer_rows(add, scene, drops, axes, samples, tiled, peer_modes, peer_seconds, time_peer, big, whole_repeats,
+               n, tiny, quick, repeats)
 
     front = set(pareto_front(rows))
     for i, r in enumerate(rows):
@@ -398,14 +418,7 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     study = stability_study(level, progress=progress)
     plates = None if tiny else plate_bench(repeats=5 if quick else 9)
     if progress and plates is not None:
-        print(f"  plate drop (jesd22-board, 4 screws): {plates['plate_drop_ms']:.3g} ms, beam drop (default) "
-              f"{plates['beam_drop_ms']:.3g} ms in the same run ({plates['plate_over_beam']:.3g}x)\n"
-              f"  superposed Monte-Carlo, {plates['montecarlo_drops']} drops, table build included: plate "
-              f"{plates['plate_superposed_us_per_drop']:.3g} us/drop ({plates['plate_superposed_drops_per_s']:.3g} "
-              f"drops/s), beam {plates['beam_superposed_us_per_drop']:.3g} us/drop; the plate's direct path "
-              f"{plates['plate_direct_us_per_drop']:.3g} us/drop ({plates['plate_direct_over_superposed']:.3g}x); "
-              "max error against a dense per-drop search (stress, strain, deflection): "
-              + ", ".join(f"{v:.2g}" for v in plates["plate_superposed_max_error"].values()), flush=True)
+        _print_plates(plates)
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)

@@ -13,6 +13,7 @@ B of the board, whose own dependence on the parameters counts; on an end (a clam
 alone, so the peak is stationary in t there.
 """
 
+import functools
 from collections.abc import Callable
 
 import equinox as eqx
@@ -58,6 +59,70 @@ def _largest(values: Float[Array, " n"], k: int):
         picked.append(i)
         values = jnp.where(positions == i, -jnp.inf, values)
     return jnp.stack(picked)
+
+
+def _vertex(lo, mid, hi):
+    """Offset (cells) of the parabola through three neighbouring grid values, a start inside the right cell, and
+    the parabola's gain there over the middle value."""
+    curv = lo - 2 * mid + hi
+    u = jnp.clip(0.5 * (lo - hi) / jnp.where(curv < 0, curv, -1.0), -0.5, 0.5) * (curv < 0)
+    return u, u * (0.5 * (hi - lo) + 0.5 * curv * u)
+
+
+def _grid_starts(F, A, envelope, x_g, t_g, windows: int, per_window: int, candidates: int):
+    """The first step of `find_peak`: Newton starts from the grid (x0, t0, sign, grid x, grid t, grid value)."""
+    cell_x, cell_t = x_g[1] - x_g[0], t_g[1] - t_g[0]
+    # Candidates: the largest local maxima in time of the spatial envelope (a lone spike at an end counts).
+    left = jnp.concatenate([jnp.full((1,), -jnp.inf, A.dtype), envelope[:-1]])
+    right = jnp.concatenate([envelope[1:], jnp.full((1,), -jnp.inf, A.dtype)])
+    is_local = (envelope >= left) & (envelope >= right)
+    scores = jnp.where(is_local, envelope, -jnp.inf).reshape(windows, -1)
+    idx = jax.vmap(lambda v: _largest(v, per_window))(scores) + scores.shape[1] * jnp.arange(windows)[:, None]
+    idx = idx.ravel()
+    where_x = A[:, idx].argmax(axis=0)
+    nx, nt = A.shape
+    ix_lo, ix_hi = jnp.maximum(where_x - 1, 0), jnp.minimum(where_x + 1, nx - 1)
+    it_lo, it_hi = jnp.maximum(idx - 1, 0), jnp.minimum(idx + 1, nt - 1)
+    mid = A[where_x, idx]
+    (ux, gain_x), (ut, gain_t) = _vertex(A[ix_lo, idx], mid, A[ix_hi, idx]), _vertex(A[where_x, it_lo], mid,
+                                                                                 A[where_x, it_hi])
+    # (Clipped: a peak at a clamped end has its vertex outside the board.)
+    x0 = jnp.clip(x_g[where_x] + cell_x * ux, x_g[0], x_g[-1])
+    t0 = jnp.clip(t_g[idx] + cell_t * ut, t_g[0], t_g[-1])
+    out = x0, t0, jnp.sign(F[where_x, idx]), x_g[where_x], t_g[idx], mid
+    if windows == 1:
+        return out
+    best = _largest(mid + gain_x + gain_t, min(candidates, idx.shape[0]))
+    return tuple(v[best] for v in out)
+
+
+
+def _coarse(F, A, envelope, *, x_g, t_g):
+    """An unrefined row of `find_peak`: the grid's maximum by a plain max (where it lies only if asked for: XLA
+    drops the arg-maxima when unused)."""
+    value, j = envelope.max(), envelope.argmax()
+    err = (value - jnp.max(envelope[::2])) / jnp.maximum(value, jnp.finfo(A.dtype).tiny)
+    return FieldPeak(value, x_g[A[:, j].argmax()], t_g[j], err)
+
+
+def _finish(x_all, t_all, f_all, gain_all, c, m, cv, *, modal, board, window, length_c, n):
+    """The last step of `find_peak`: of one row's refined candidates, the peak, evaluated (with its gradient) at
+    the maximiser."""
+    # Of candidates that tie (an undamped board repeats its peak every period, mirror images tie exactly),
+    # report the earliest: the first time the board sees that stress.
+    tied = f_all >= jnp.max(f_all) * (1.0 - 1e-9)
+    best = jnp.argmin(jnp.where(tied, t_all, jnp.inf))
+    x_best, t_best = jax.lax.stop_gradient((x_all[best], t_all[best]))
+    # A peak on end B (a clamp) moves with the board's length: keep that dependence too.
+    x_star = jnp.where(x_best >= length_c * (1.0 - 1e-9), board.length, x_best)
+    # A peak at the window's end moves with the window (which depends on the board): keep that dependence.
+    t_star = jnp.where(t_best >= window * (1.0 - 1e-9), window, t_best)
+    q = modal(t_star)
+    value = jnp.abs(jnp.sum(c * q * mode_shapes(board, x_star, n, cv)))
+    if m is not None:
+        value = value + jnp.sum(m * q * q)
+    err = jax.lax.stop_gradient(gain_all[best] / jnp.maximum(f_all[best], jnp.finfo(f_all.dtype).tiny))
+    return FieldPeak(value, x_star, t_star, err)
 
 
 def find_peak(
@@ -116,11 +181,7 @@ def find_peak(
         at = np.asarray([i for i, r in enumerate(refined) if r == which])
         return jax.tree_util.tree_map(lambda v: v[at], tree)
 
-    def coarse(F, A, envelope):
-        # The value by a plain max (where it lies only if asked for: XLA drops the arg-maxima when unused).
-        value, j = envelope.max(), envelope.argmax()
-        err = (value - jnp.max(envelope[::2])) / jnp.maximum(value, jnp.finfo(A.dtype).tiny)
-        return FieldPeak(value, x_g[A[:, j].argmax()], t_g[j], err)
+    coarse = functools.partial(_coarse, x_g=x_g, t_g=t_g)
 
     if not any(refined):
         return jax.vmap(coarse)(*grids)
@@ -131,36 +192,8 @@ def find_peak(
     cell_x, cell_t = x_g[1] - x_g[0], t_g[1] - t_g[0]
     per_window = min(candidates, t.shape[0] // windows)
 
-    def vertex(lo, mid, hi):
-        # Offset (cells) of the parabola through three neighbouring grid values, a start inside the right cell,
-        # and the parabola's gain there over the middle value.
-        curv = lo - 2 * mid + hi
-        u = jnp.clip(0.5 * (lo - hi) / jnp.where(curv < 0, curv, -1.0), -0.5, 0.5) * (curv < 0)
-        return u, u * (0.5 * (hi - lo) + 0.5 * curv * u)
-
     def starts(F, A, envelope):
-        # Candidates: the largest local maxima in time of the spatial envelope (a lone spike at an end counts).
-        left = jnp.concatenate([jnp.full((1,), -jnp.inf, A.dtype), envelope[:-1]])
-        right = jnp.concatenate([envelope[1:], jnp.full((1,), -jnp.inf, A.dtype)])
-        is_local = (envelope >= left) & (envelope >= right)
-        scores = jnp.where(is_local, envelope, -jnp.inf).reshape(windows, -1)
-        idx = jax.vmap(lambda v: _largest(v, per_window))(scores) + scores.shape[1] * jnp.arange(windows)[:, None]
-        idx = idx.ravel()
-        where_x = A[:, idx].argmax(axis=0)
-        nx, nt = A.shape
-        ix_lo, ix_hi = jnp.maximum(where_x - 1, 0), jnp.minimum(where_x + 1, nx - 1)
-        it_lo, it_hi = jnp.maximum(idx - 1, 0), jnp.minimum(idx + 1, nt - 1)
-        mid = A[where_x, idx]
-        (ux, gain_x), (ut, gain_t) = vertex(A[ix_lo, idx], mid, A[ix_hi, idx]), vertex(A[where_x, it_lo], mid,
-                                                                                     A[where_x, it_hi])
-        # (Clipped: a peak at a clamped end has its vertex outside the board.)
-        x0 = jnp.clip(x_g[where_x] + cell_x * ux, x_g[0], x_g[-1])
-        t0 = jnp.clip(t_g[idx] + cell_t * ut, t_g[0], t_g[-1])
-        out = x0, t0, jnp.sign(F[where_x, idx]), x_g[where_x], t_g[idx], mid
-        if windows == 1:
-            return out
-        best = _largest(mid + gain_x + gain_t, min(candidates, idx.shape[0]))
-        return tuple(v[best] for v in out)
+        return _grid_starts(F, A, envelope, x_g, t_g, windows, per_window, candidates)
 
     rows, k = coeffs.shape[0], per_window if windows == 1 else min(candidates, windows * per_window)
     flat = lambda v: v.reshape(rows * k)  # noqa: E731 - (rows, candidates) -> one axis
@@ -234,23 +267,7 @@ def find_peak(
     x_r, t_r, f_r = jnp.where(grid_wins, x_grid, x_r), jnp.where(grid_wins, t_grid, t_r), jnp.maximum(f_r, f_grid)
     unflat = lambda v: v.reshape(rows, k)  # noqa: E731
 
-    def finish(x_all, t_all, f_all, gain_all, c, m, cv):
-        # Of candidates that tie (an undamped board repeats its peak every period, mirror images tie exactly),
-        # report the earliest: the first time the board sees that stress.
-        tied = f_all >= jnp.max(f_all) * (1.0 - 1e-9)
-        best = jnp.argmin(jnp.where(tied, t_all, jnp.inf))
-        x_best, t_best = jax.lax.stop_gradient((x_all[best], t_all[best]))
-        # A peak on end B (a clamp) moves with the board's length: keep that dependence too.
-        x_star = jnp.where(x_best >= length_c * (1.0 - 1e-9), board.length, x_best)
-        # A peak at the window's end moves with the window (which depends on the board): keep that dependence.
-        t_star = jnp.where(t_best >= window * (1.0 - 1e-9), window, t_best)
-        q = modal(t_star)
-        value = jnp.abs(jnp.sum(c * q * mode_shapes(board, x_star, n, cv)))
-        if m is not None:
-            value = value + jnp.sum(m * q * q)
-        err = jax.lax.stop_gradient(gain_all[best] / jnp.maximum(f_all[best], jnp.finfo(f_all.dtype).tiny))
-        return FieldPeak(value, x_star, t_star, err)
-
+    finish = functools.partial(_finish, modal=modal, board=board, window=window, length_c=length_c, n=n)
     peaks = jax.vmap(finish)(unflat(x_r), unflat(t_r), unflat(f_r), unflat(gain), coeffs, membrane, curvature)
     if coarse_peaks is None:
         return peaks
