@@ -3,8 +3,11 @@
 One summary serves three readers: `repr` in a REPL or notebook, the CLI's table, and the CLI's `--json`.
 """
 
+import contextlib
 import csv
 import math
+import os
+import secrets
 from pathlib import Path
 
 import numpy as np
@@ -83,11 +86,31 @@ def summary_text(summary: dict, title: str = "") -> str:
     return "\n".join(lines)
 
 
-def write_csv(rows: list[dict], path) -> Path:
-    """Write dict rows (same keys) as CSV (creating its folder); returns the path."""
+@contextlib.contextmanager
+def atomic_open(path, mode: str = "w", **kwargs):
+    """Open `path` for writing such that it appears only complete: the file is written under a hidden temporary
+    name in the same folder (`.NAME.PID-RANDOM.part`, same file system, so the final rename is atomic) and renamed
+    to `path` when the block ends; a block that raises or is interrupted removes it. A run that stops half way
+    (Ctrl-C, an error, a full disk) leaves no partial file under a finished-looking name."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as f:
+    scratch = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(3)}.part")
+    # "x": create it new, with the permissions (umask) the final file would have had.
+    f = open(scratch, mode.replace("w", "x"), **kwargs)
+    try:
+        with f:
+            yield f
+        os.replace(scratch, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            scratch.unlink()
+        raise
+
+
+def write_csv(rows: list[dict], path) -> Path:
+    """Write dict rows (same keys) as CSV (creating its folder, atomically: `atomic_open`); returns the path."""
+    path = Path(path)
+    with atomic_open(path, "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else [])
         writer.writeheader()
         writer.writerows([plain(r) for r in rows])

@@ -157,9 +157,14 @@ def _check_out(args):
 def _save(output, fig, name, args):
     import matplotlib.pyplot as plt
 
+    from ._report import atomic_open
+
     path = Path(args.out) / name
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    try:
+        with atomic_open(path, "wb") as f:
+            fig.savefig(f, format=path.suffix[1:], dpi=120)
+    finally:
+        plt.close(fig)
     output.wrote(path)
 
 

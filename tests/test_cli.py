@@ -355,3 +355,49 @@ def test_cache_keeps_its_size_by_removing_the_least_recently_used(tmp_path, monk
     cli._bound_cache(folder / "compiled-bbbb")  # a run that compiled
     assert sorted(p.name for p in folder.rglob("*") if p.is_file()) == ["compiled-aaaa", "compiled-bbbb",
                                                                          "new-cache"]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Data safety: output files appear complete or not at all; interrupts and impossible sizes are one line.
+
+
+def _leftovers(folder):
+    return sorted(p.name for p in folder.iterdir())
+
+
+def test_a_failed_csv_write_leaves_no_file_under_the_final_name(tmp_path):
+    from beamdrop_jax._report import write_csv
+
+    class Unreadable:
+        def __float__(self):
+            raise OSError(28, "No space left on device")
+
+    with pytest.raises(OSError):
+        write_csv([{"a_mm": 1.0}, {"a_mm": Unreadable()}], tmp_path / "table.csv")
+    assert _leftovers(tmp_path) == []  # neither a header-only table.csv nor its temporary file
+    write_csv([{"a_mm": 1.0}, {"a_mm": 2.0}], tmp_path / "table.csv")
+    assert _leftovers(tmp_path) == ["table.csv"]
+    assert (tmp_path / "table.csv").read_text().splitlines() == ["a_mm", "1.0", "2.0"]
+
+
+def test_a_figure_that_fails_half_written_leaves_no_png(tmp_path, monkeypatch):
+    import matplotlib.figure
+
+    real = matplotlib.figure.Figure.savefig
+
+    def half_then_full_disk(self, fname, *args, **kwargs):
+        if hasattr(fname, "write"):
+            fname.write(b"\x89PNG\r\n\x1a\n")
+        else:
+            with open(fname, "wb") as f:
+                f.write(b"\x89PNG\r\n\x1a\n")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", half_then_full_disk)
+    with pytest.raises(OSError):
+        main(["impact", "--out", str(tmp_path)])
+    assert _leftovers(tmp_path) == []
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", real)
+    assert main(["impact", "--out", str(tmp_path)]) == 0
+    assert _leftovers(tmp_path) == ["impact.png"]
+    assert (tmp_path / "impact.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
