@@ -422,8 +422,10 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        (out / "bench.json").write_text(json.dumps(dict(drops=n, rows=rows, stability=study, plates=plates),
-                                                   indent=1))
+        from ._common.report import atomic_open
+
+        with atomic_open(out / "bench.json") as f:
+            f.write(json.dumps(dict(drops=n, rows=rows, stability=study, plates=plates), indent=1))
     return rows
 
 

@@ -157,9 +157,14 @@ def _check_out(args):
 def _save(output, fig, name, args):
     import matplotlib.pyplot as plt
 
+    from ._common.report import atomic_open
+
     path = Path(args.out) / name
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    try:
+        with atomic_open(path, "wb") as f:
+            fig.savefig(f, format=path.suffix[1:], dpi=120)
+    finally:
+        plt.close(fig)
     output.wrote(path)
 
 
@@ -347,7 +352,7 @@ def cmd_montecarlo(args, output):
     import numpy as np
 
     import beamdrop_jax as bd
-    from ._common.report import write_csv
+    from ._common.report import write_csv_columns
 
     scene = _scene(args)
     numerics = bd.Numerics(n_modes=args.n_modes) if args.n_modes else None
@@ -360,12 +365,16 @@ def cmd_montecarlo(args, output):
     output.summary(res.report(limit, "strain"),
                    f"{res.n} random drops (orientation uniform on [0, 360) deg); drops outside the model are left "
                    "out of every statistic")
-    orientation = np.broadcast_to(np.asarray(res.samples.drop.orientation), (res.n,))
-    rows = [{"orientation_deg": math.degrees(o), "peak_stress_MPa": s / 1e6, "peak_strain_microstrain": e * 1e6,
-             "peak_deflection_mm": d * 1e3, "flags": "|".join(bd.Flag.describe(f))}
-            for o, s, e, d, f in zip(orientation.tolist(), *(np.asarray(v).tolist() for v in
-                                     (res.peak_stress, res.peak_strain, res.peak_deflection, res.flags)))]
-    output.wrote(write_csv(rows, Path(args.out) / "montecarlo-drops.csv"))
+    # In float64 whatever the run's precision, and in degrees as math.degrees rounds: the numbers the CSV held when
+    # it was written a dict per drop.
+    f64 = lambda v: np.asarray(v, dtype=np.float64)  # noqa: E731
+    orientation = np.broadcast_to(f64(res.samples.drop.orientation), (res.n,))
+    masks, which = np.unique(np.asarray(res.flags), return_inverse=True)
+    names = np.array(["|".join(bd.Flag.describe(m)) for m in masks.tolist()], dtype=object)
+    columns = {"orientation_deg": orientation * (180.0 / math.pi), "peak_stress_MPa": f64(res.peak_stress) / 1e6,
+               "peak_strain_microstrain": f64(res.peak_strain) * 1e6,
+               "peak_deflection_mm": f64(res.peak_deflection) * 1e3, "flags": names[which.reshape(-1)]}
+    output.wrote(write_csv_columns(columns, Path(args.out) / "montecarlo-drops.csv", progress=not args.json))
     if not args.no_plots:
         _save(output, bd.plot_montecarlo(res, limit=limit, quantity="strain"), "montecarlo.png", args)
 

@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from beamdrop_jax.cli import main
@@ -359,3 +360,99 @@ def test_cache_keeps_its_size_by_removing_the_least_recently_used(tmp_path, monk
     cli._bound_cache(folder / "compiled-bbbb")  # a run that compiled
     assert sorted(p.name for p in folder.rglob("*") if p.is_file()) == ["compiled-aaaa", "compiled-bbbb",
                                                                          "new-cache"]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Data safety: output files appear complete or not at all; interrupts and impossible sizes are one line.
+
+
+def _leftovers(folder):
+    return sorted(p.name for p in folder.iterdir())
+
+
+def test_a_failed_csv_write_leaves_no_file_under_the_final_name(tmp_path):
+    from beamdrop_jax._common.report import write_csv
+
+    class Unreadable:
+        def __float__(self):
+            raise OSError(28, "No space left on device")
+
+    with pytest.raises(OSError):
+        write_csv([{"a_mm": 1.0}, {"a_mm": Unreadable()}], tmp_path / "table.csv")
+    assert _leftovers(tmp_path) == []  # neither a header-only table.csv nor its temporary file
+    write_csv([{"a_mm": 1.0}, {"a_mm": 2.0}], tmp_path / "table.csv")
+    assert _leftovers(tmp_path) == ["table.csv"]
+    assert (tmp_path / "table.csv").read_text().splitlines() == ["a_mm", "1.0", "2.0"]
+
+
+def test_a_figure_that_fails_half_written_leaves_no_png(tmp_path, monkeypatch):
+    import matplotlib.figure
+
+    real = matplotlib.figure.Figure.savefig
+
+    def half_then_full_disk(self, fname, *args, **kwargs):
+        if hasattr(fname, "write"):
+            fname.write(b"\x89PNG\r\n\x1a\n")
+        else:
+            with open(fname, "wb") as f:
+                f.write(b"\x89PNG\r\n\x1a\n")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", half_then_full_disk)
+    with pytest.raises(OSError):
+        main(["impact", "--out", str(tmp_path)])
+    assert _leftovers(tmp_path) == []
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", real)
+    assert main(["impact", "--out", str(tmp_path)]) == 0
+    assert _leftovers(tmp_path) == ["impact.png"]
+    assert (tmp_path / "impact.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_columns_csv_is_the_text_of_the_rows_csv(tmp_path):
+    """The bulk writer writes what `csv` wrote a dict per row: shortest round-trip floats, NaN and inf empty,
+    integers, booleans, quoted strings, \\r\\n line ends; over several blocks of rows."""
+    from beamdrop_jax._common import report as _report
+
+    rng = np.random.default_rng(1)
+    n = 2 * _report._BLOCK_ROWS + 7
+    x = rng.standard_normal(n) * 10.0 ** rng.integers(-30, 30, n)
+    x[[3, 70_000, n - 1]] = [np.nan, np.inf, -0.0]
+    columns = {"x_mm": x, "k": rng.integers(-5, 5, n).astype(np.int32), "ok": rng.random(n) < 0.5,
+               "flags": np.array(["", "A|B", 'say "hi", twice', "line\nbreak"], dtype=object)[rng.integers(0, 4, n)]}
+    rows = [dict(zip(columns, values)) for values in zip(*(v.tolist() for v in columns.values()))]
+    _report.write_csv(rows, tmp_path / "rows.csv")
+    _report.write_csv_columns(columns, tmp_path / "columns.csv")
+    assert (tmp_path / "columns.csv").read_bytes() == (tmp_path / "rows.csv").read_bytes()
+    _report.write_csv([{"a": None}, {"a": 1.5}], tmp_path / "one_rows.csv")
+    _report.write_csv_columns({"a": np.array([np.nan, 1.5])}, tmp_path / "one_columns.csv")
+    assert (tmp_path / "one_columns.csv").read_bytes() == (tmp_path / "one_rows.csv").read_bytes()
+
+
+def test_montecarlo_csv_holds_the_result_arrays_and_shows_its_progress(tmp_path, monkeypatch, capsys):
+    import csv
+    import math
+
+    import beamdrop_jax as bd
+    from beamdrop_jax._common import report as _report
+
+    results = []
+    montecarlo = bd.montecarlo
+    monkeypatch.setattr(bd, "montecarlo", lambda *a, **k: results.append(montecarlo(*a, **k)) or results[-1])
+    monkeypatch.setattr(_report, "PROGRESS_ROWS", 1000, raising=False)  # a "large" table for this test
+    assert main(["montecarlo", "-n", "3000", "--no-plots", "--out", str(tmp_path)]) == 0
+    assert "writing montecarlo-drops.csv" in capsys.readouterr().err
+    res, = results
+    with open(tmp_path / "montecarlo-drops.csv", newline="") as f:
+        table = list(csv.DictReader(f))
+    assert len(table) == 3000
+    assert list(table[0]) == ["orientation_deg", "peak_stress_MPa", "peak_strain_microstrain", "peak_deflection_mm",
+                              "flags"]
+    expected = {"orientation_deg": np.degrees(np.asarray(res.samples.drop.orientation)),
+                "peak_stress_MPa": np.asarray(res.peak_stress) / 1e6,
+                "peak_strain_microstrain": np.asarray(res.peak_strain) * 1e6,
+                "peak_deflection_mm": np.asarray(res.peak_deflection) * 1e3}
+    for name, values in expected.items():
+        read = np.array([float(r[name]) if r[name] else math.nan for r in table])
+        np.testing.assert_array_equal(read, values, err_msg=name)  # every digit: the floats read back exactly
+    assert [r["flags"] for r in table] == ["|".join(bd.Flag.describe(f)) for f in np.asarray(res.flags).tolist()]
+    assert _leftovers(tmp_path) == ["montecarlo-drops.csv"]
