@@ -100,13 +100,8 @@ from ._studies.sensitivity import (
     sensitivities as sensitivities,
     smooth_peak_stress as smooth_peak_stress,
 )
-from ._studies.campaign import (
-    STANDARDS as STANDARDS,
-    CampaignDrop as CampaignDrop,
-    CampaignResult as CampaignResult,
-    campaign as campaign,
-    campaign_drops as campaign_drops,
-)
+from ._studies.standards import STANDARDS as STANDARDS, CampaignDrop as CampaignDrop, campaign_drops as campaign_drops
+from ._studies.campaign import CampaignResult as CampaignResult, campaign as campaign
 from ._peers.opensees import (
     FEResponse as FEResponse,
     PlateFEResponse as PlateFEResponse,

@@ -22,6 +22,13 @@ from ._scene.containers import Scene
 from ._response.numerics import Numerics
 from ._response.superposition import _batch_jumps, superposition_table, table_numerics
 from ._common.compile import jit
+from ._board.base import natural_frequencies
+from ._board.beam import Board
+from ._common.report import atomic_open
+from ._impact.motion import HalfSine
+from ._response.diffrax_path import solve_modes
+from ._response.simulate import board_response, simulate
+from ._scene.file import load_scene
 
 REFERENCE = Numerics(n_modes=32)
 
@@ -422,7 +429,6 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        from ._common.report import atomic_open
 
         with atomic_open(out / "bench.json") as f:
             f.write(json.dumps(dict(drops=n, rows=rows, stability=study, plates=plates), indent=1))
@@ -438,8 +444,6 @@ def plate_bench(repeats: int = 5, n_drops: int = 1 << 20) -> dict:
       8 Newton steps) over 256 drops."""
     import dataclasses
 
-    from ._scene.file import load_scene
-    from ._response.simulate import simulate
 
     plate, beam = load_scene("jesd22-board"), Scene.default()
     key = jax.random.PRNGKey(2026)
@@ -520,12 +524,7 @@ def stability_study(level: str = "quick", progress=True) -> dict:
     - `modes`: peak stress against mode count for the ideal impulse and half-sines of several durations;
     - `buckling`: first frequency and peak stress as the axial compression approaches the Euler load.
     """
-    from ._board.base import natural_frequencies
-    from ._response.diffrax_path import solve_modes
-    from ._impact.motion import HalfSine
-    from ._board.beam import Board
 
-    from ._response.simulate import board_response
 
     tiny = level == "tiny"
     board = Board()

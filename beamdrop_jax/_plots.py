@@ -3,6 +3,10 @@
 import numpy as np
 
 from ._impact.routh import ImpactMode, routh_impulse
+from ._common.checks import on_host
+from ._impact.kinematics import body_axes, housing_impact
+from ._scene.containers import board_ends
+from ._studies.standards import STANDARDS
 
 
 def _axes(ax, figsize=(6.0, 4.5)):
@@ -134,9 +138,6 @@ def plot_scene(scene, response=None, *, ax=None):
     ground's impulse at S (from `response`, or computed)."""
     from matplotlib.patches import Polygon
 
-    from ._common.checks import on_host
-    from ._impact.kinematics import body_axes, housing_impact
-    from ._scene.containers import board_ends
 
     fig, ax = _axes(ax, (8.0, 5.2))
     th = float(scene.drop.orientation)
@@ -198,7 +199,6 @@ def plot_impacts(scene, response):
     impact's time, approach speed and normal impulse."""
     import matplotlib.pyplot as plt
 
-    from ._impact.kinematics import housing_impact
 
     hit = response.housing if response.housing is not None else housing_impact(scene)
     impacts = response.impacts
@@ -230,8 +230,6 @@ def plot_impacts(scene, response):
 def _draw_housing(ax, scene, placement, **style):
     from matplotlib.patches import Rectangle
 
-    from ._common.checks import on_host
-    from ._scene.containers import board_ends
 
     W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
     ax.add_patch(Rectangle((-W / 2, -H / 2), W, H, fill=False, lw=1.5, color="0.3"))
@@ -319,7 +317,6 @@ def plot_campaign(result, *, ax=None, limit: float | None = None, scene: str | N
 
     import matplotlib.patches as mpatches
 
-    from ._studies.campaign import STANDARDS
 
     n = len(result.drops)
     fig, ax = _axes(ax, figsize=(max(6.5, 0.42 * n + 2.5), 5.2))

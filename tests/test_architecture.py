@@ -119,3 +119,20 @@ def test_modules_and_functions_stay_small():
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= 150:
                 long.append(f"{name}.{node.name}")
     assert not big and not long, (big, long)
+
+
+def test_the_core_imports_at_the_top():
+    """Function-local imports hide circles: the core has one, documented (`LAZY`); the edge (the CLI, figures,
+    benchmark) may import late for the command line's start-up time."""
+    late = []
+    for name, path in _modules().items():
+        if _family(name) not in LAYERS:
+            continue
+        for function in ast.walk(ast.parse(path.read_text())):
+            if isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                for node in ast.walk(function):
+                    if isinstance(node, ast.ImportFrom) and node.level:
+                        target = ".".join(name.split(".")[:-node.level] + [node.module or ""]).strip(".")
+                        if (name, target) not in LAZY:
+                            late.append(f"{name}.{function.name}: {target}")
+    assert not late, late

@@ -34,7 +34,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._common.checks import Flag, Range, as_float, combine, float_dtype, flag_if, is_concrete
-from .._common.fields import check_ranges, init_fields, positive, range_flags
+from .._common.fields import check_ranges, init_fields, range_flags
 from .base import AbstractBoard, AbstractModal
 
 EDGE_CODES = {"F": 0, "S": 1, "C": 2}  # the power of the distance to the edge in the Ritz basis

@@ -29,6 +29,7 @@ from jaxtyping import Array, Float, Int
 
 from .._common.checks import Flag, Range, array_module, as_float, combine, flag_if, is_concrete
 from .._common.compile import jit
+from .._common.report import plain, summary_text
 
 
 class ImpactMode(enum.IntEnum):
@@ -78,7 +79,6 @@ class ImpactResult(eqx.Module):
 
     def summary(self) -> dict:
         """The impact's numbers, units in the keys (JSON-ready; `repr` prints them)."""
-        from .._common.report import plain
 
         if jnp.ndim(self.mode):
             raise ValueError("ImpactResult.summary() needs one impact (index a batched one first)")
@@ -92,8 +92,6 @@ class ImpactResult(eqx.Module):
         })
 
     def __repr__(self) -> str:
-        from .._common.report import summary_text
-
         try:
             return summary_text(self.summary(), "ImpactResult")
         except (ValueError, TypeError, jax.errors.ConcretizationTypeError):

@@ -15,6 +15,7 @@ import numpy as np
 
 from .._impact.motion import HalfSine
 from .._board.beam import Board
+from .._board.plate import Plate
 
 
 
@@ -228,7 +229,6 @@ def opensees_plate_response(plate, motion: HalfSine | None, window: float, *, ga
     `motion=None`: the frequencies alone (`strain` empty, peaks NaN).
 
     The peer models an undamped plate; in-plane motion is held (it is uncoupled from bending in a flat plate)."""
-    from .._board.plate import Plate
 
     if not isinstance(plate, Plate):  # input check: this peer meshes plates only
         raise ValueError("opensees_plate_response takes a bd.Plate")

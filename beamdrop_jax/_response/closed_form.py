@@ -1,15 +1,12 @@
 """The exact modal response to half-sine (or ideal impulse) pulses at the supports: `ClosedFormModes` and the pulse train's jets for the Newton search (`_TrainJet`)."""
 
-import dataclasses
-import functools
 import math
-from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Complex, Float, Int
+from jaxtyping import Array, Complex, Float
 
 from .._common.trig import cexp, sincos
 from .pulses import free_phasor, pulse_phasors, unit_response, unit_response_jet

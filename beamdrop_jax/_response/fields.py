@@ -1,15 +1,8 @@
 """A drop's response as fields: deflection, strain and stress over (x, t) along a beam (`response_fields`), a plate's strain map at one time, and the notes a reader of the numbers should know."""
 
-import dataclasses
-import functools
-import math
-from typing import NamedTuple
 
-import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Complex, Float, Int
 
 from .._board.base import curvature_scale
 from .._board.beam import mode_shapes, wavenumbers

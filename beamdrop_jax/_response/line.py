@@ -1,15 +1,10 @@
 """Peaks of a board whose domain is a line (a beam): curvature and deflection along x, mid-plane stretching."""
 
-import dataclasses
-import functools
 import math
-from typing import NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
-from jaxtyping import Array, Bool, Complex, Float, Int
+from jaxtyping import Array
 
 from .._board.base import Peak, natural_frequencies
 from .._board.beam import wavenumbers

@@ -1,17 +1,9 @@
 """How the board's response is computed: `Numerics`, static configuration of modes, grids, solver and search."""
 
-import dataclasses
-import functools
-import math
-from typing import NamedTuple
 
 import equinox as eqx
-import jax
-import jax.numpy as jnp
-import numpy as np
-from jaxtyping import Array, Bool, Complex, Float, Int
 
-from .._common.checks import Range, as_int, as_real, require
+from .._common.checks import Range, as_int, as_real
 from .._impact.routh import LAWS
 from .diffrax_path import SOLVERS
 

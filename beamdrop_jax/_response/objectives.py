@@ -1,15 +1,12 @@
 """Differentiable peak objectives of a drop: `peak_stress`, `peak_strain`, `peak_deflection`, each one compiled program that computes the value and its gradient together (a custom JVP), for optimisers and sensitivities."""
 
-import dataclasses
 import functools
-import math
-from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Complex, Float, Int
+from jaxtyping import Array, Float
 
 from .._common.checks import Flag, combine, flag_if, float_dtype, is_concrete
 from .._common.compile import filter_jit

@@ -1,21 +1,18 @@
 """What a drop or a board response reports: `Response` (with the board's `Peak` and `Gauges`), `Fields`, `StrainMap`."""
 
-import dataclasses
-import functools
-import math
-from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
-from jaxtyping import Array, Bool, Complex, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from .._board.base import Gauges, Peak
 from .._common.checks import Flag, is_concrete
 from .._impact.clatter import Impacts
 from .._impact.kinematics import HousingImpact
 from .._impact.routh import ImpactResult
+from .._common.report import plain, summary_text
+from .._impact.routh import ImpactMode
 
 
 class Response(eqx.Module):
@@ -50,8 +47,6 @@ class Response(eqx.Module):
 
     def summary(self) -> dict:
         """The numbers of one response, units in the keys (JSON-ready with `plain`; `repr` prints them)."""
-        from .._impact.routh import ImpactMode
-        from .._common.report import plain
 
         if jnp.ndim(self.peak.stress) or not is_concrete(self):
             raise ValueError("Response.summary() needs one concrete response (index a batched one first)")
@@ -91,8 +86,6 @@ class Response(eqx.Module):
 
 
     def __repr__(self) -> str:
-        from .._common.report import summary_text
-
         try:
             return summary_text(self.summary(), "Response (x from end A, t from the first impact)")
         except ValueError:

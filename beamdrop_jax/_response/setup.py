@@ -1,15 +1,12 @@
 """What every response computes first: the modes kept (and the convergence check's), the time window and grid, the modal solution (closed form or diffrax) and its grid factors."""
 
-import dataclasses
-import functools
 import math
 from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
-from jaxtyping import Array, Bool, Complex, Float, Int
+from jaxtyping import Array
 
 from .._common.checks import Flag, Range, as_float, flag_if, float_dtype
 from .._impact.motion import HalfSine

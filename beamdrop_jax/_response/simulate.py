@@ -5,16 +5,9 @@ clattering impacts that follow) -> support jumps -> support motion -> modal resp
 peaks and a convergence check. The board's domain decides the peak search: a line (`line.py`) or a surface
 (`surface.py`)."""
 
-import dataclasses
-import functools
-import math
-from typing import NamedTuple
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
-import numpy as np
-from jaxtyping import Array, Bool, Complex, Float, Int
 
 from .._board.base import AbstractBoard
 from .._common.checks import Flag, combine, is_concrete, raise_if_flagged

@@ -48,6 +48,7 @@ from .line import _search
 from .setup import _setup
 from .simulate import drop_motion
 from .._common.compile import filter_jit, jit
+from .setup import _mode_counts, support_motion
 
 _BUILD_BATCH = 16
 DURATION_NODES = 17
@@ -450,7 +451,6 @@ def _cells(board, unit, rows, x, t, rates, omega, zeta, durations):
 def _kept_modes(scene: Scene):
     """The modes `simulate` keeps for a scene's pulse (one compiled program: op by op, a plate's eigensolve took
     0.25 s)."""
-    from .setup import _mode_counts, support_motion
 
     return _mode_counts(scene.board, support_motion(scene, jnp.ones(2)), Numerics())[0]
 

@@ -1,15 +1,9 @@
 """Peaks of a board whose domain is a surface (a plate): principal surface strain and stress, deflection over (x, y), strain gauges."""
 
-import dataclasses
-import functools
 import math
-from typing import NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
-from jaxtyping import Array, Bool, Complex, Float, Int
 
 from .._board.base import Gauges, Peak
 from .._board.plate import surface_strain, surface_stress

@@ -16,12 +16,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._board.base import AbstractBoard
 from .._board.beam import Board
 from .._common.fields import VECTOR_FIELDS, check_ranges, init_fields, positive, range_flags
 from .._common.compile import filter_jit
 from .._common.checks import (DEG, Flag, Range, array_module, as_float, combine, flag_if, is_concrete, on_host,
-                      raise_if_flagged, require)
+                      raise_if_flagged)
 
 # Angles beyond this many radians (about 1600 turns) are rejected: no drop needs them, and the sine and cosine of
 # larger arguments lose their argument reduction in the fast polynomial the response uses.

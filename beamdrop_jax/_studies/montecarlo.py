@@ -20,13 +20,14 @@ from tqdm import tqdm
 
 from .._common.checks import float_dtype
 from .._common.checks import Flag
-from .._board.plate import Plate
 from .._scene.containers import Scene, check_scene
 from .._response.numerics import Numerics
 from .._response.objectives import _scene_peaks
 from .._response.simulate import drop_motion
 from .._response.superposition import superposes, superposition_table, table_numerics, table_peaks
 from .._common.compile import filter_jit
+from .._board.base import natural_frequencies
+from .._common.report import summary_text
 
 _AHEAD = 2
 
@@ -199,8 +200,6 @@ class MonteCarloResult(eqx.Module):
         return out
 
     def __repr__(self) -> str:
-        from .._common.report import summary_text
-
         return summary_text(self.report(), "MonteCarloResult")
 
 
@@ -221,7 +220,6 @@ def montecarlo_numerics(scene: Scene, distribution: "DropDistribution | None" = 
     modes), a grid of 2 points per period of the top mode and 3 per mode along the board, and three candidates
     refined: each impact's window nominates three, ranked by their parabolic interpolation. On 1024 random default
     drops with 3 impacts: within 0.27 % of 32 modes (the single-impact mode count plus one: 1.5 %)."""
-    from .._board.base import natural_frequencies
 
     tau = float(scene.contact.duration)
     pinned = getattr(scene.board, "ends", None) == "pinned"  # plates converge as slowly as clamped beams
@@ -265,7 +263,6 @@ def _evaluate(samples, axes, numerics, grid_deflection=False, inner=None):
 
 
 def _batch_peaks(samples, axes, numerics, grid_deflection, inner):
-
     def one(scene, motion_and_flags):
         motion, impact_flags = motion_and_flags
         # The pulse's duration from the scene: shared by the drops (not batched) unless the distribution varies it,

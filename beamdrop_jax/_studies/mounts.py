@@ -15,6 +15,7 @@ from jaxtyping import Array, Float
 from tqdm import tqdm
 
 from .._common.checks import float_dtype
+from .optimum import AbstractOptimum
 from .placement import OBJECTIVES, drop_set, risk
 from .._board.plate import Plate
 from .._scene.containers import Scene, check_scene
@@ -23,9 +24,10 @@ from .._response.setup import _gauge_points
 from .._response.objectives import _scene_peaks
 from .._response.simulate import _simulate
 from .._common.compile import filter_jit
+from .._common.report import plain
 
 
-class MountResult(eqx.Module):
+class MountResult(AbstractOptimum):
     """Outcome of `optimize_mounts`: `mounts` (m, 2) the best found (m), `value` its objective, `initial_value`
     the scene's own mounts' (strain, -), `history` the objective per step, `n_evaluations`, `n_drops`."""
 
@@ -38,16 +40,9 @@ class MountResult(eqx.Module):
     objective: str = eqx.field(static=True)
 
     def summary(self) -> dict:
-        from .._common.report import plain
-
         return plain({"objective": f"{self.objective} peak strain over {self.n_drops} drops",
                       "before_microstrain": self.initial_value * 1e6, "after_microstrain": self.value * 1e6,
                       "mounts_mm": self.mounts * 1e3, "evaluations": self.n_evaluations})
-
-    def __repr__(self) -> str:
-        from .._common.report import summary_text
-
-        return summary_text(self.summary(), "MountResult")
 
 
 def _region(plate: Plate, region) -> np.ndarray:

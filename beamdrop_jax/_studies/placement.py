@@ -22,6 +22,9 @@ from .._scene.containers import Placement, Scene, check_scene, scene_flags
 from .._response.numerics import Numerics
 from .._response.objectives import peak_stress
 from .._common.compile import filter_jit
+from .._common.report import plain
+from .optimum import AbstractOptimum
+from .._impact.kinematics import housing_impact
 
 OBJECTIVES = ("mean", "max", "cvar")
 
@@ -128,7 +131,7 @@ def placement_objective(scene: Scene, drops: Scene, objective="mean", alpha=0.9,
     return f
 
 
-class PlacementResult(eqx.Module):
+class PlacementResult(AbstractOptimum):
     """Outcome of `optimize_placement`.
 
     - `placement`: the best `Placement` found; `value`: its objective (Pa); `initial_value`: the scene's own.
@@ -150,7 +153,6 @@ class PlacementResult(eqx.Module):
 
     def summary(self, scene: Scene | None = None) -> dict:
         """Before (the scene's placement, when given) and after, units in the keys."""
-        from .._common.report import plain
 
         def where(p, when):
             return {f"{when}_centre_mm": np.asarray(p.centre) * 1e3, f"{when}_angle_deg": np.degrees(p.angle)}
@@ -161,11 +163,6 @@ class PlacementResult(eqx.Module):
         out |= {"before_objective_MPa": np.asarray(self.initial_value) / 1e6, **where(self.placement, "after"),
                 "after_objective_MPa": np.asarray(self.value) / 1e6, "evaluations": self.n_evaluations}
         return plain(out)
-
-    def __repr__(self) -> str:
-        from .._common.report import summary_text
-
-        return summary_text(self.summary(), "PlacementResult")
 
 
 def optimize_placement(
@@ -268,8 +265,6 @@ def _finish(scene, best_u, best_v, histories, path_u, config):
 
 @filter_jit
 def _drop_flags(drops: Scene, law: str):
-    from .._impact.kinematics import housing_impact
-
     return jax.vmap(lambda s: combine(scene_flags(s), housing_impact(s, law=law).flags))(drops)
 
 

@@ -16,7 +16,7 @@ from .._response.simulate import drop_motion
 from .._response.objectives import peak_deflection, peak_strain, peak_stress
 from .._board.beam import mode_shapes
 from .._board.search import field_on_grid, near_mounts
-from .._board.plate import Plate, surface_stress
+from .._board.plate import surface_stress
 from .._common.compile import filter_jit
 
 _PEAKS = {"stress": peak_stress, "strain": peak_strain, "deflection": peak_deflection}
