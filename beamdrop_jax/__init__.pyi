@@ -108,7 +108,8 @@ from ._peers.opensees import (
     opensees_board_response as opensees_board_response,
     opensees_plate_response as opensees_plate_response,
 )
-from ._bench import numpy_peak_stress as numpy_peak_stress, run_bench as run_bench, stability_study as stability_study
+from ._peers.numpy_scipy import numpy_peak_stress as numpy_peak_stress
+from ._bench import run_bench as run_bench, stability_study as stability_study
 from ._plots import (
     plot_deflected_board as plot_deflected_board,
     plot_bench as plot_bench,

@@ -356,7 +356,7 @@ def test_a_plate_needs_float64():
 
 
 def test_superposed_montecarlo_on_a_plate_matches_each_drops_own_search():
-    from beamdrop_jax._studies.montecarlo import _evaluate, sample_axes
+    from beamdrop_jax._studies.montecarlo import evaluate_batch, sample_axes
     from beamdrop_jax._response.superposition import _build_plate, table_numerics
 
     scene, _ = _screwed_scene()
@@ -366,7 +366,7 @@ def test_superposed_montecarlo_on_a_plate_matches_each_drops_own_search():
     result = bd.montecarlo(scene, 48, jax.random.PRNGKey(4), distribution, progress=False)  # superposed
     numerics = table_numerics(scene)
     dense = dataclasses.replace(numerics, points_per_period=16, candidates=8, newton_steps=8)
-    reference = _evaluate(result.samples, sample_axes(result.samples, scene), dense, False, 8)
+    reference = evaluate_batch(result.samples, sample_axes(result.samples, scene), dense, False, 8)
     assert result.n_invalid == 0 and not np.any(np.asarray(reference[3]))
     for found, ref in zip((result.peak_stress, result.peak_strain, result.peak_deflection), reference):
         ratio = np.asarray(found) / np.asarray(ref)

@@ -87,8 +87,8 @@ def _modes(ends: str, n_modes: int) -> tuple[np.ndarray, ...]:
     # Normalise to int phi^2 = 1/2, and the participation factors and g, by Gauss-Legendre quadrature.
     xg, wg = np.polynomial.legendre.leggauss(max(64, 8 * n_modes))
     xi, w = (xg + 1) / 2, wg / 2
-    phi = _evaluate(np, (b, a, c, d, s), xi[:, None], 0)
-    dphi = _evaluate(np, (b, a, c, d, s), xi[:, None], 1)
+    phi = _shape_values(np, (b, a, c, d, s), xi[:, None], 0)
+    dphi = _shape_values(np, (b, a, c, d, s), xi[:, None], 1)
     scale = np.sqrt(0.5 / (w @ phi**2))
     a, c, d, s = a * scale, c * scale, d * scale, s * scale
     phi, dphi = phi * scale, dphi * scale
@@ -97,7 +97,7 @@ def _modes(ends: str, n_modes: int) -> tuple[np.ndarray, ...]:
     return b, a, c, d, s, p_A, p_B, g
 
 
-def _evaluate(xp, coeffs, xi, orders):
+def _shape_values(xp, coeffs, xi, orders):
     """d^order phi / d xi^order at xi (broadcast against the modes) for each of `orders` (an int gives one array),
     with array module xp (numpy or jax.numpy); the exponentials and the sine and cosine are evaluated once."""
     b, a, c, d, s = coeffs
@@ -176,7 +176,7 @@ def mode_shapes(board, x, n_modes: int, curvature=False, orders=0):
     else:
         coeffs = tuple(_jnp(v) for v in _modes(board.ends, n_modes)[:5])
         wanted = orders if curvature is False else orders + tuple(o + 2 for o in orders)
-        values = dict(zip(wanted, _evaluate(jnp, coeffs, x / L, wanted)))
+        values = dict(zip(wanted, _shape_values(jnp, coeffs, x / L, wanted)))
         deflection = tuple(values[o] / L**o for o in orders)
         if curvature is False:
             out = deflection

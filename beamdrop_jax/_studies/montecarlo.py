@@ -250,7 +250,7 @@ def inner_batch(numerics: Numerics, batch: int, n_devices: int = 1, plate: bool 
     return -(-inner // n_devices) * n_devices
 
 
-def _evaluate(samples, axes, numerics, grid_deflection=False, inner=None):
+def evaluate_batch(samples, axes, numerics, grid_deflection=False, inner=None):
     """Peaks (stress, strain, deflection, flags) of a batch of drops, `inner` drops vmapped at a time in a loop
     (`inner` must divide the batch; None: all at once). Drop i goes to lane i // steps of step i % steps, so a
     batch sharded in contiguous blocks stays sharded along the lanes.
@@ -389,7 +389,7 @@ def montecarlo(
         # per-chunk transfer and dispatch.
         batch = min(n, 16384) if batch_size is None else int(batch_size)
         inner = inner_batch(numerics, batch, n_dev, plate=scene.board.SURFACE)
-        evaluate = lambda chunk, axes: _evaluate(chunk, axes, numerics, not refine_deflection, inner)  # noqa: E731
+        evaluate = lambda chunk, axes: evaluate_batch(chunk, axes, numerics, not refine_deflection, inner)  # noqa: E731
     batch = -(-batch // inner) * inner
     axes = sample_axes(samples, scene)
     mesh = Mesh(np.asarray(devices), ("drops",))
