@@ -222,7 +222,14 @@ def test_jesd22_board_scene_through_the_cli_and_a_scene_file(tmp_path, capsys):
     scene = bd.load_scene("jesd22-board")
     bd.save_scene(scene, tmp_path / "board.toml")
     again = bd.load_scene(tmp_path / "board.toml")
-    assert again.board.edges == "FFFF"
+    assert again.board.edges == "FFFF" and again.board.basis == scene.board.basis
+    coarse = eqx.tree_at(lambda s: s.board, scene, dataclasses.replace(scene.board, basis=(10, 8)))
+    bd.save_scene(coarse, tmp_path / "coarse.toml")
+    assert "basis = [10, 8]" in (tmp_path / "coarse.toml").read_text()
+    assert bd.load_scene(tmp_path / "coarse.toml").board.basis == (10, 8)
+    (tmp_path / "bad.toml").write_text('extends = "jesd22-board"\n[plate]\nbasis = [10.5, 8]\n')
+    with pytest.raises(ValueError, match=r"\[plate\] basis = \[10.5, 8\]: must be a pair \[nx, ny\] of integers"):
+        bd.load_scene(tmp_path / "bad.toml")
     np.testing.assert_array_equal(np.asarray(again.board.mounts), np.asarray(scene.board.mounts))
     assert main(["drop", "--scene", str(tmp_path / "board.toml"), "--no-plots", "--json", "--out", str(tmp_path)]) == 0
     report = json.loads(capsys.readouterr().out)
@@ -386,3 +393,18 @@ def test_superposed_montecarlo_on_a_plate_matches_each_drops_own_search():
     with pytest.raises(ValueError, match="a plate's table holds one duration"):
         bd.montecarlo(scene, 8, jax.random.PRNGKey(3), bd.DropDistribution(duration=("uniform", 2e-4, 1e-3)),
                       superpose=True, progress=False)
+
+
+def test_diffrax_path_on_a_plate_agrees_with_the_closed_form():
+    """The plate's modes through the numerical path: the same peak and gauge as the exact modal solution."""
+    plate = bd.Plate(length=0.1, width=0.06, edges="FFFF", mounts=((0.01, -0.02), (0.09, -0.025), (0.05, 0.025)),
+                     basis=(6, 6), damping_ratio=0.02)
+    motion = bd.HalfSine(2.0, 3.0, 4e-4)
+    exact = bd.board_response(plate, motion, bd.Numerics(n_modes=5), gauges=((0.05, 0.0),))
+    numerical = bd.board_response(plate, motion, bd.Numerics(n_modes=5, method="diffrax", rtol=1e-10, atol=1e-14),
+                                  gauges=((0.05, 0.0),))
+    np.testing.assert_allclose(float(numerical.peak.strain), float(exact.peak.strain), rtol=1e-7)
+    np.testing.assert_allclose(np.asarray(numerical.gauges.peak_strain), np.asarray(exact.gauges.peak_strain),
+                               rtol=1e-6)
+    with pytest.raises(ValueError, match="stretching = True models pinned beams only"):
+        bd.board_response(plate, motion, bd.Numerics(n_modes=5, method="diffrax", stretching=True))

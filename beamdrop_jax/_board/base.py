@@ -39,6 +39,10 @@ class AbstractModal(eqx.Module):
     def flags(self):
         """Traceable checks (an int32 mask of `Flag`)."""
 
+    def describe(self) -> str:
+        """A short description for reports, e.g. "beam 100 mm, pinned ends"."""
+        return type(self).__name__
+
 
 class AbstractBoard(AbstractModal):
     """A board in a scene: a modal model with a domain, a scene-file section and its own peak search.
@@ -65,9 +69,6 @@ class AbstractBoard(AbstractModal):
         """Scene-file keys of the board beyond its float fields and choices (plain Python values)."""
         return {}
 
-    def describe(self) -> str:
-        """A short description for reports, e.g. "beam 100 mm, pinned ends"."""
-        return type(self).__name__
 
 
 def natural_frequencies(board: AbstractModal, n_modes: int) -> Float[Array, " n"]:

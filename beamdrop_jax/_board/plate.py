@@ -247,7 +247,7 @@ class Plate(AbstractBoard):
         return bool(np.all(gaps <= 1e-9 * float(self.length)))
 
     def file_extras(self) -> dict:
-        extras = {"edges": self.edges}
+        extras = {"edges": self.edges, "basis": list(self.basis)}
         if self.mounts is not None:
             extras["mounts"] = np.asarray(self.mounts).tolist()
         return extras
@@ -368,6 +368,9 @@ class PlateModes(AbstractModal):
 
     def flags(self):
         return self.plate.flags()
+
+    def describe(self) -> str:
+        return f"modes of the {self.plate.describe()}"
 
 
 def plate_modes(plate: Plate, n_modes: int) -> PlateModes:

@@ -68,11 +68,13 @@ def solve_modes(
     """
     omega = natural_frequencies(board, n_modes)
     zeta = board.damping_ratio
-    if stretching and board.ends != "pinned":
-        raise ValueError(f'Numerics.stretching = True models pinned ends only (Board.ends = "{board.ends}")')
+    if stretching:  # the membrane force of a pinned beam's immovable ends (section 3); no other board has one yet
+        ends = getattr(board, "ends", None)
+        if ends != "pinned":
+            raise ValueError(f"Numerics.stretching = True models pinned beams only (this board: {board.describe()})")
+        kappa = wavenumbers(board, n_modes)
+        membrane = board.youngs_modulus * board.width * board.thickness / 4.0
     part = support_participation(board, n_modes) * force_mask[:, None]
-    kappa = wavenumbers(board, n_modes)
-    membrane = board.youngs_modulus * board.width * board.thickness / 4.0
 
     v0, accel, jumps, dtmax = motion.forcing(lambda j: modal_velocity_jumps(board, j, n_modes) * force_mask, window)
 

@@ -38,10 +38,11 @@ OPTIONAL_KEYS = {
     ("plate", "poisson_ratio"),
     ("plate", "mounts"),
     ("plate", "mount_radius"),
+    ("plate", "basis"),
 }
 # `[plate]` stands where `[board]` would: the board is then a `Plate`.
 FILE_SECTIONS = {**SECTIONS, "plate": Plate}
-PLATE_EXTRA_KEYS = ("edges", "mounts")
+PLATE_EXTRA_KEYS = ("edges", "mounts", "basis")
 # Keys whose value is a name from a list (the others are numbers).
 CHOICE_KEYS = {("board", "ends"): ENDS}
 _DEG_RANGE = Range(-MAX_ANGLE / DEG, MAX_ANGLE / DEG, unit="deg")
@@ -106,6 +107,13 @@ def _section(section: str, table, source: str, hint: str | None = None):
             if not (isinstance(value, list) and value and all(isinstance(p, list) and len(p) == 2 for p in value)):
                 raise ValueError(f"{where} mounts = {value!r}: must be a list of [x, y] pairs in m")
             kwargs[key] = as_float(value, f"{where} mounts", Range(unit="m"))
+            continue
+        if section == "plate" and key == "basis":
+            if not (isinstance(value, list) and len(value) == 2
+                    and all(isinstance(b, int) and not isinstance(b, bool) for b in value)):
+                raise ValueError(f"{where} basis = {value!r}: must be a pair [nx, ny] of integers in [2, 40] (the "
+                                 "Ritz functions along x and across the width)")
+            kwargs[key] = tuple(value)
             continue
         if (section, key) in ANGLE_KEYS:
             raise ValueError(f"{where} {key} = {value!r}: angles in scene files are in degrees under "
@@ -210,6 +218,8 @@ def _toml_value(x) -> str:
         return f'"{x}"'
     if isinstance(x, list):
         return "[" + ", ".join(_toml_value(v) for v in x) + "]"
+    if isinstance(x, int) and not isinstance(x, bool):  # counts (a plate's basis) stay integers
+        return str(x)
     return repr(float(x))
 
 
