@@ -1,7 +1,8 @@
 """The `beamdrop` command: parse and check the arguments, load a scene, call the library, print, save files.
 
-Every bad argument is one line on stderr and exit status 2 before any computation. `--json` prints one JSON object
-on stdout (units in the keys) instead of the table; messages about written files then go to stderr.
+Every bad argument is one line on stderr and exit status 2 before any computation; Ctrl-C is one line naming the
+files that are complete, and exit status 130. Files appear only complete (`_report.atomic_open`). `--json` prints
+one JSON object on stdout (units in the keys) instead of the table; messages about written files then go to stderr.
 Compiled programs are kept in a persistent cache (the user's cache folder: JAX's compilation cache, and the
 package's own programs as executables under `programs/`, which later runs load without tracing them; `--no-cache`
 or BEAMDROP_NO_CACHE=1 turn it off, BEAMDROP_CACHE_DIR moves it; a run that compiles removes the least recently
@@ -17,7 +18,10 @@ import hashlib
 import json
 import math
 import os
+import signal
 import sys
+import threading
+import time
 from pathlib import Path
 
 STANDARDS = ("ista-1a", "ista-2a", "mil-std-810h-516-iv", "iec-60068-2-31", "jesd22-b111")
@@ -118,6 +122,7 @@ class _Output:
     def wrote(self, path):
         print(f"wrote {path}", file=sys.stderr if self.json else sys.stdout)
         self.report.setdefault("files", []).append(str(path))
+        _active["files"].append(path)
 
     def summary(self, summary: dict, title: str):
         from ._report import plain, summary_text
@@ -621,13 +626,53 @@ def _figures_to_files():
             os.environ["MPLBACKEND"] = before
 
 
+# 128 + SIGINT: the status shells give a command that Ctrl-C ended.
+INTERRUPTED = 130
+# The command running now and the files it has completed: what an interrupt's message names.
+_active = {"command": None, "files": [], "claim": threading.Lock()}
+
+
+def _interrupt_once(signum, frame):
+    """SIGINT: a KeyboardInterrupt, once; later ones are ignored so that the cleanup it starts runs whole."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
+
+
+def _interrupted_line() -> str:
+    files = _active["files"]
+    kept = (f"kept the complete files {', '.join(map(str, files))}, nothing else written" if files
+            else "no results written")
+    return f"beamdrop{' ' + _active['command'] if _active['command'] else ''}: interrupted; {kept}"
+
+
 def main(argv=None) -> int:
+    """The command line `argv` (default: the process's); returns the exit status: 0, 2 for a bad input (one line
+    on stderr), 130 for Ctrl-C (one line on stderr naming the files that are complete)."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    _active.update(command=next((a for a in argv if not a.startswith("-")), None), files=[], claim=threading.Lock())
+    previous = None
+    # Python's own Ctrl-C handler only: a caller's handler, or SIGINT ignored (`nohup`), stays as it is.
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is \
+            signal.default_int_handler:
+        previous = signal.signal(signal.SIGINT, _interrupt_once)
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        if _active["claim"].acquire(blocking=False):  # else the watchdog (`run`) has said it and ends the process
+            print(_interrupted_line(), file=sys.stderr)
+        return INTERRUPTED
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+
+
+def _main(argv) -> int:
     record = _run_record(argv)
     # The programs this command line used last time load in the background while the package imports.
     listed, preloading = _preload(record)
     try:
         args = _parse(argv)
+        _active["command"] = args.command
         output = _Output(args)
         try:
             if _writes_files(args):
@@ -657,15 +702,49 @@ def main(argv=None) -> int:
     return 0
 
 
+INTERRUPT_GRACE_S = 1.0
+
+
+def _watch_interrupts() -> None:
+    """Ctrl-C reaches Python's handler only when the main thread returns from compiled code (an XLA compile can
+    take a minute): a thread woken by the signal itself (`signal.set_wakeup_fd`) ends the command when the main
+    thread has not within `INTERRUPT_GRACE_S`, with the same line and status, after removing the files being
+    written. Only for the `beamdrop` process (`run`): it ends the process."""
+    try:
+        wake, woken = os.pipe()
+        os.set_blocking(woken, False)
+        signal.set_wakeup_fd(woken)
+    except (OSError, ValueError):  # not the main thread, or no pipes: Python's handler alone
+        return
+
+    def watch():
+        while signal.SIGINT not in os.read(wake, 64):
+            pass
+        time.sleep(INTERRUPT_GRACE_S)
+        if not _active["claim"].acquire(blocking=False):
+            return  # the main thread has handled it
+        if "beamdrop_jax._report" in sys.modules:  # else no file is being written
+            sys.modules["beamdrop_jax._report"].abandon_writes()
+        # Over a progress bar's line, as the bar redraws itself (and on a terminal, erasing it).
+        with contextlib.suppress(OSError, ValueError):
+            sys.stderr.write(("\r\033[K" if sys.stderr.isatty() else "\r") + _interrupted_line() + "\n")
+            sys.stderr.flush()
+        os._exit(INTERRUPTED)
+
+    threading.Thread(target=watch, name="beamdrop-interrupt", daemon=True).start()
+
+
 def run() -> None:
     """The `beamdrop` command: `main`, then the process ends without Python's teardown, which frees JAX's and XLA's
     objects one by one (0.1 s on the 2-core development machine, a sixth of a warm `beamdrop drop`). Everything
     the command writes is complete by then: files are closed as they are written, and the output is flushed here.
     A reader that stops early (`beamdrop drop | head`) ends the command quietly, as it does other Unix tools."""
+    _watch_interrupts()
     try:
         code = main()
     except BrokenPipeError:
         code = 1
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # done: a late Ctrl-C changes nothing
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(OSError, ValueError):  # a closed pipe or stream: nothing more to deliver
             stream.flush()
