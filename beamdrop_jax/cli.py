@@ -24,6 +24,14 @@ import threading
 import time
 from pathlib import Path
 
+# Clattering drops with restitution up to 0.8 come to rest or pivot within 50 impacts (the embedded scenes, every
+# orientation). Each pair of impacts is a term of the compiled search (its size and compile time grow as K^2: on 2
+# cores K = 3, 20, 50 compile in 6, 14, 54 s and take 0.3, 0.5, 1.3 GB).
+MAX_IMPACTS = 50
+# What a Monte-Carlo drop costs, measured on `montecarlo -n 2000000` (float64): 113 bytes of memory per drop
+# without figures and 240 with them, over 0.5 GB for the process itself; 75 bytes of CSV per drop.
+DROP_BYTES, DROP_BYTES_PLOTTED, PROCESS_BYTES, CSV_ROW_BYTES = 120, 250, 600 << 20, 76
+
 STANDARDS = ("ista-1a", "ista-2a", "mil-std-810h-516-iv", "iec-60068-2-31", "jesd22-b111")
 QUANTITIES = {"stress": ("MPa", 1e-6), "strain": ("microstrain", 1e6), "deflection": ("mm", 1e3)}
 
@@ -56,6 +64,19 @@ def _int_at_least(lo):
             raise argparse.ArgumentTypeError(f"{text!r} is not a whole number (valid: >= {lo})") from None
         if value < lo:
             raise argparse.ArgumentTypeError(f"{value} is out of range (valid: a whole number >= {lo})")
+        return value
+
+    return parse
+
+
+def _int_in(lo, hi):
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number (valid: [{lo}, {hi}])") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{value} is out of range (valid: a whole number in [{lo}, {hi}])")
         return value
 
     return parse
@@ -157,6 +178,50 @@ def _check_out(args):
         probe.unlink()
     except OSError as err:
         raise ValueError(f"--out {args.out}: cannot write there ({err.strerror or err})") from None
+
+
+def _available_memory() -> int | None:
+    """Bytes of memory a new allocation can still get: the kernel's estimate (MemAvailable: free memory and caches
+    it can drop), within the cgroup's limit in a container; else free (or all) physical memory; None if unknown."""
+    available = None
+    with contextlib.suppress(OSError, ValueError):
+        with open("/proc/meminfo") as f:
+            available = next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
+    for name in ("SC_AVPHYS_PAGES", "SC_PHYS_PAGES"):  # macOS has only the second
+        if available is None:
+            with contextlib.suppress(OSError, ValueError, AttributeError):
+                available = os.sysconf(name) * os.sysconf("SC_PAGE_SIZE")
+    with contextlib.suppress(OSError, ValueError):
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit != "max":
+            room = int(limit) - int(Path("/sys/fs/cgroup/memory.current").read_text())
+            available = room if available is None else min(available, room)
+    return available
+
+
+def _size(n_bytes: float) -> str:
+    for unit in ("bytes", "KB", "MB", "GB", "TB", "PB"):
+        if n_bytes < 1000 or unit == "PB":
+            return f"{n_bytes:.0f} {unit}" if unit == "bytes" else f"{n_bytes:.3g} {unit}"
+        n_bytes /= 1000
+
+
+def _check_montecarlo_fits(args):
+    """Refuse an `-n` whose results cannot fit in memory or whose CSV cannot fit on the disk of `--out`, before
+    anything runs (an impossible -n otherwise fails inside XLA after a long wait, or fills the disk)."""
+    import shutil
+
+    per_drop = DROP_BYTES if args.no_plots else DROP_BYTES_PLOTTED
+    memory, free = _available_memory(), shutil.disk_usage(args.out).free
+    fits = [free // CSV_ROW_BYTES] + ([] if memory is None else [max(0, memory - PROCESS_BYTES) // per_drop])
+    valid = f"valid here: -n in [1, {min(fits)}]" if min(fits) >= 1 else "too little is left for any -n"
+    if memory is not None and PROCESS_BYTES + args.n * per_drop > memory:
+        raise ValueError(f"-n {args.n} needs about {_size(PROCESS_BYTES + args.n * per_drop)} of memory ({per_drop} "
+                         f"bytes per drop{'' if args.no_plots else ' with figures'}) but {_size(memory)} is "
+                         f"available; {valid}" + ("" if args.no_plots else " (more with --no-plots)"))
+    if args.n * CSV_ROW_BYTES > free:
+        raise ValueError(f"-n {args.n}: the CSV of every drop needs about {_size(args.n * CSV_ROW_BYTES)} on disk "
+                         f"({CSV_ROW_BYTES} bytes per drop) but {args.out} has {_size(free)} free; {valid}")
 
 
 def _save(output, fig, name, args):
@@ -364,8 +429,10 @@ def cmd_montecarlo(args, output):
     if args.max_impacts:
         numerics = (dataclasses.replace(numerics, max_impacts=args.max_impacts) if numerics
                     else bd.montecarlo_numerics(scene, max_impacts=args.max_impacts))
+    # A chunk larger than -n would only be padding (the drops and results do not depend on the chunk size).
+    batch_size = args.batch_size and min(args.batch_size, args.n)
     res = bd.montecarlo(scene, args.n, jax.random.PRNGKey(args.seed), numerics=numerics,
-                        batch_size=args.batch_size, progress=not args.json)
+                        batch_size=batch_size, progress=not args.json)
     limit = args.allowable_microstrain * 1e-6
     output.summary(res.report(limit, "strain"),
                    f"{res.n} random drops (orientation uniform on [0, 360) deg); drops outside the model are left "
@@ -447,8 +514,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help=f"use exactly modes 1..N (default: {default})")
 
     def impacts(p):
-        p.add_argument("--max-impacts", type=_int_at_least(1), metavar="K",
-                       help="follow up to K clattering impacts after the first (default 1: the first impact only)")
+        p.add_argument("--max-impacts", type=_int_in(1, MAX_IMPACTS), metavar="K",
+                       help=f"follow up to K impacts: the first and the clattering ones after it, K in [1, "
+                            f"{MAX_IMPACTS}] (default 1: the first impact only)")
 
     p = command("impact", "the housing's corner impact alone: impulse (N s), contact mode, velocity jumps (m/s), "
                           "energy lost (J), impulse diagram")
@@ -677,6 +745,8 @@ def _main(argv) -> int:
         try:
             if _writes_files(args):
                 _check_out(args)
+            if args.command == "montecarlo":
+                _check_montecarlo_fits(args)
             stamp = _setup_jax(args)
             from ._compile import keep_programs, quick_programs
 

@@ -527,3 +527,17 @@ def test_ctrl_c_after_some_files_names_the_complete_ones(tmp_path, monkeypatch, 
     assert captured.err.strip() == (f"beamdrop drop: interrupted; kept the complete files {tmp_path / 'scene.png'}, "
                                     "nothing else written")
     assert _leftovers(tmp_path) == ["scene.png"]
+
+
+def test_an_impossible_n_is_refused_at_once(tmp_path):
+    """-n 10^12 drops (120 TB of results) once ran into XLA and aborted there 20 s later."""
+    import time
+
+    start = time.monotonic()
+    done = subprocess.run([sys.executable, "-m", "beamdrop_jax.cli", "montecarlo", "-n", "1000000000000", "--no-plots",
+                           "--out", str(tmp_path)], capture_output=True, text=True, timeout=300)
+    elapsed = time.monotonic() - start
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert len(done.stderr.strip().splitlines()) == 1 and "-n 1000000000000 needs about 120 TB of memory" in done.stderr
+    assert elapsed < 10, elapsed  # importing: no compile, no run
+    assert list(tmp_path.iterdir()) == []

@@ -72,10 +72,25 @@ def one_error_line(capsys, argv, *expected):
         (["drop", "--scene", "nonexistent", "--no-cache"], ["nonexistent", "embedded scenes"]),
         (["drpo"], ["invalid choice", "drpo"]),
         (["drop", "--out", "/proc/beamdrop-cannot-write-here"], ["--out", "cannot write"]),
+        (["drop", "--max-impacts", "51"], ["--max-impacts", "51", "[1, 50]"]),
+        (["montecarlo", "--max-impacts", "0"], ["--max-impacts", "[1, 50]"]),
+        (["montecarlo", "-n", "1000000000000", "--no-plots"], ["-n 1000000000000", "memory", "valid here: -n in [1, "]),
     ],
 )
 def test_bad_arguments_are_one_line_exit_2(argv, expected, capsys):
     one_error_line(capsys, argv, *expected)
+
+
+def test_montecarlo_refuses_a_csv_larger_than_the_free_disk(tmp_path, monkeypatch, capsys):
+    import shutil
+
+    from beamdrop_jax import cli
+
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(10**9, 10**9 - 10**6, 10**6))
+    line = one_error_line(capsys, ["montecarlo", "-n", "100000", "--no-plots", "--out", str(tmp_path)],
+                          "-n 100000", "CSV", "on disk", str(tmp_path), "1 MB free")
+    assert f"valid here: -n in [1, {10**6 // cli.CSV_ROW_BYTES}]" in line
+    assert list(tmp_path.iterdir()) == []
 
 
 # A scene file set of wrong inputs: (file text, words the one-line error must hold besides the file name).
