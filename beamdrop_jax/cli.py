@@ -122,6 +122,15 @@ def _degrees_list(text):
         raise argparse.ArgumentTypeError(f"{text!r}: {err} (write 'a,b,c' or 'low:high:count' in degrees)") from None
 
 
+def _scene_arg(text):
+    if not text.strip():  # not the default scene: an unset variable in a script (--scene "$SCENE") would be silent
+        from ._scenefile import embedded_scenes
+
+        raise argparse.ArgumentTypeError(f"{text!r} is empty (valid: a scene TOML file, or an embedded scene: "
+                                         f"{', '.join(embedded_scenes())})")
+    return text
+
+
 def _heights(text):
     height = _float_in(0.0, 1e4, "m", lo_open=True)
     return [height(v) for v in text.split(",")]
@@ -497,7 +506,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     def command(name, help_text, description=None):
         p = sub.add_parser(name, help=help_text, description=(description or help_text).replace("%%", "%"))
-        p.add_argument("--scene", metavar="FILE_OR_NAME",
+        p.add_argument("--scene", metavar="FILE_OR_NAME", type=_scene_arg,
                        help=f"scene TOML file, or an embedded scene: {scenes} (default: default)")
         p.add_argument("--out", default="beamdrop-out", metavar="DIR",
                        help="folder for figures and tables, created if needed (default: beamdrop-out)")
@@ -601,6 +610,10 @@ def _parse(argv) -> argparse.Namespace:
         options = [o for action in command._actions for o in action.option_strings]
         near = difflib.get_close_matches(extra[0].split("=")[0], options, n=1)
         command.error(f"unrecognized arguments: {' '.join(extra)}" + (f"; did you mean {near[0]}?" if near else ""))
+    if getattr(args, "solver", None) and args.method != "diffrax":
+        parser.commands[args.command].error(
+            f"--solver {args.solver} needs --method diffrax (--method {args.method or 'closed_form'}"
+            f"{'' if args.method else ', the default,'} has no solver)")
     return args
 
 

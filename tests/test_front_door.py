@@ -72,6 +72,10 @@ def one_error_line(capsys, argv, *expected):
         (["drop", "--scene", "nonexistent", "--no-cache"], ["nonexistent", "embedded scenes"]),
         (["drpo"], ["invalid choice", "drpo"]),
         (["drop", "--out", "/proc/beamdrop-cannot-write-here"], ["--out", "cannot write"]),
+        (["drop", "--scene", ""], ["--scene", "empty", "embedded scene", "default"]),
+        (["impact", "--scene", "  "], ["--scene", "empty"]),
+        (["drop", "--solver", "Tsit5"], ["--solver Tsit5", "needs --method diffrax", "closed_form"]),
+        (["drop", "--solver", "Kvaerno5", "--method", "closed_form"], ["--solver Kvaerno5", "--method diffrax"]),
         (["drop", "--max-impacts", "51"], ["--max-impacts", "51", "[1, 50]"]),
         (["montecarlo", "--max-impacts", "0"], ["--max-impacts", "[1, 50]"]),
         (["montecarlo", "-n", "1000000000000", "--no-plots"], ["-n 1000000000000", "memory", "valid here: -n in [1, "]),
@@ -135,6 +139,24 @@ def test_bad_scene_files_are_one_line_naming_file_and_key(name, tmp_path, capsys
     path = tmp_path / f"{name}.toml"
     path.write_text(text)
     one_error_line(capsys, ["drop", "--scene", str(path), "--no-plots", "--no-cache"], str(path), *words)
+
+
+def test_a_scene_file_that_is_not_utf8_is_named_with_the_byte_and_line(tmp_path, capsys):
+    path = tmp_path / "latin1.toml"
+    path.write_bytes('extends = "default"\n[drop]\n# hauteur mesurée\nheight = 1.0\n'.encode("latin-1"))
+    one_error_line(capsys, ["drop", "--scene", str(path), "--no-plots", "--no-cache"], str(path), "not UTF-8",
+                   "byte 0xe9 at line 3, column 16")
+
+
+def test_empty_mounts_clear_the_extended_scenes_mounts(tmp_path, capsys):
+    held = tmp_path / "held.toml"
+    held.write_text('extends = "jesd22-board"\n[plate]\nedges = "SFSF"\nmounts = []\n')
+    plate = bd.load_scene(held).board
+    assert plate.mounts is None and plate.edges == "SFSF"
+    free = tmp_path / "free.toml"  # the base's edges are free: without its screws the plate is not held
+    free.write_text('extends = "jesd22-board"\n[plate]\nmounts = []\n')
+    one_error_line(capsys, ["drop", "--scene", str(free), "--no-plots", "--no-cache"], str(free), "[plate]",
+                   "edges = 'FFFF'", "needs at least 3 mounts")
 
 
 def test_scene_files_extend_or_give_everything(tmp_path):
