@@ -413,3 +413,43 @@ def test_a_concrete_scene_closed_over_by_a_users_jit_gives_the_eager_numbers():
               lambda: bd.board_response(scene.board, pulse).peak.stress)]
     for inside, eager in cases:
         assert float(jax.jit(inside)()) == pytest.approx(float(eager()), rel=1e-12)
+
+
+def test_bad_inputs_stop_before_any_computation(tmp_path):
+    """In a fresh process (where any JAX operation compiles first): each bad input is one line and exit 2 with
+    nothing compiled, in a fraction of a second once the package is imported (a compile takes seconds)."""
+    import subprocess
+    import sys
+
+    latin1 = tmp_path / "latin1.toml"
+    latin1.write_bytes('extends = "default"\n# caf\xe9\n'.encode("latin-1"))
+    unheld = tmp_path / "unheld.toml"
+    unheld.write_text('extends = "jesd22-board"\n[plate]\nmounts = []\n')
+    cases = [["drop", "--scene", ""], ["drop", "--solver", "Tsit5"], ["drop", "--scene", str(latin1)],
+             ["drop", "--scene", str(unheld)], ["montecarlo", "-n", "1000000000000"], ["drop", "--max-impacts", "51"],
+             ["montecarlo", "--max-impacts", "0"]]
+    script = """
+import contextlib, io, json, sys, time
+import jax
+compiles = []
+jax.monitoring.register_event_duration_secs_listener(
+    lambda event, duration, **kw: compiles.append(1) if event == "/jax/core/compile/backend_compile_duration" else 0)
+from beamdrop_jax.cli import main
+for argv in json.loads(sys.argv[1]):
+    before, start, err = len(compiles), time.perf_counter(), io.StringIO()
+    with contextlib.redirect_stderr(err):
+        try:
+            code = main(argv + ["--no-plots", "--no-cache", "--out", sys.argv[2]])
+        except SystemExit as stop:
+            code = stop.code
+    print(json.dumps([argv, code, len(compiles) - before, time.perf_counter() - start, err.getvalue()]))
+"""
+    done = subprocess.run([sys.executable, "-c", script, json.dumps(cases), str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    results = [json.loads(line) for line in done.stdout.splitlines()]
+    assert [r[0] for r in results] == cases
+    for argv, code, compiled, seconds, err in results:
+        lines = [line for line in err.splitlines() if not line.startswith("beamdrop: compiling")]
+        assert (code, compiled, len(lines)) == (2, 0, 1), (argv, code, compiled, err)
+        assert seconds < 2.0, (argv, seconds)  # the first one pays for building the parser's scene list
