@@ -456,3 +456,92 @@ def test_montecarlo_csv_holds_the_result_arrays_and_shows_its_progress(tmp_path,
         np.testing.assert_array_equal(read, values, err_msg=name)  # every digit: the floats read back exactly
     assert [r["flags"] for r in table] == ["|".join(bd.Flag.describe(f)) for f in np.asarray(res.flags).tolist()]
     assert _leftovers(tmp_path) == ["montecarlo-drops.csv"]
+
+
+def _interrupt(tmp_path, argv, marker, after_s=0.0, env=None):
+    """Start `beamdrop ARGV` (`python -m beamdrop_jax.cli`), send SIGINT `after_s` seconds after `marker` appears
+    on its stderr; returns (exit status, stderr, seconds from the signal to the exit)."""
+    import signal
+    import threading
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "beamdrop_jax.cli", *argv], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, cwd=tmp_path, env={**os.environ, **(env or {})})
+    chunks = []
+    reader = threading.Thread(target=lambda: chunks.extend(iter(lambda: os.read(proc.stderr.fileno(), 4096), b"")))
+    reader.start()
+    deadline = time.monotonic() + 300
+    while marker not in b"".join(chunks) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, b"".join(chunks).decode()[-2000:]
+    time.sleep(after_s)
+    sent = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    code = proc.wait(timeout=120)
+    elapsed = time.monotonic() - sent
+    reader.join()
+    return code, b"".join(chunks).decode(), elapsed
+
+
+def _visible_lines(stderr):
+    """What a terminal shows of stderr: progress bars (redrawn after \\r, cleared at their end) and the note on
+    compiling left out."""
+    lines = [line.rsplit("\r", 1)[-1].strip() for line in stderr.split("\n")]
+    return [line for line in lines if line and not line.startswith("beamdrop: compiling") and "it/s]" not in line
+            and "rows/s]" not in line]
+
+
+def test_ctrl_c_while_the_csv_is_written_is_one_line_exit_130_and_no_csv(tmp_path):
+    out = tmp_path / "out"
+    code, err, _ = _interrupt(tmp_path, ["montecarlo", "-n", "2000000", "--out", str(out), "--no-plots"],
+                              b"writing montecarlo-drops.csv", after_s=0.5)
+    assert code == 130, err[-2000:]
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
+    assert _visible_lines(err) == ["beamdrop montecarlo: interrupted; no results written"], err[-2000:]
+    assert _leftovers(out) == []  # neither montecarlo-drops.csv nor its temporary file
+
+
+def test_ctrl_c_while_compiling_ends_the_command_at_once(tmp_path):
+    """An XLA compile holds the main thread for seconds (this command about 25 s in all on 2 cores, 3 of them
+    importing): the interrupt ends the command within a second or two all the same."""
+    env = {"BEAMDROP_NO_CACHE": "1", "JAX_COMPILATION_CACHE_DIR": ""}
+    code, err, elapsed = _interrupt(tmp_path, ["montecarlo", "-n", "1000", "--no-plots", "--seed", "7"], b"compiling",
+                                    after_s=6.0, env=env)
+    assert code == 130, err[-2000:]
+    assert "Traceback" not in err, err[-3000:]
+    assert _visible_lines(err) == ["beamdrop montecarlo: interrupted; no results written"], err[-2000:]
+    assert elapsed < 5.0
+
+
+def test_ctrl_c_after_some_files_names_the_complete_ones(tmp_path, monkeypatch, capsys):
+    import matplotlib.figure
+
+    real, calls = matplotlib.figure.Figure.savefig, []
+
+    def interrupted_in_the_second(self, fname, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            fname.write(b"\x89PNG\r\n\x1a\n")
+            raise KeyboardInterrupt
+        return real(self, fname, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", interrupted_in_the_second)
+    assert main(["drop", "--out", str(tmp_path)]) == 130
+    captured = capsys.readouterr()
+    assert captured.err.strip() == (f"beamdrop drop: interrupted; kept the complete files {tmp_path / 'scene.png'}, "
+                                    "nothing else written")
+    assert _leftovers(tmp_path) == ["scene.png"]
+
+
+def test_an_impossible_n_is_refused_at_once(tmp_path):
+    """-n 10^12 drops (120 TB of results) once ran into XLA and aborted there 20 s later."""
+    import time
+
+    start = time.monotonic()
+    done = subprocess.run([sys.executable, "-m", "beamdrop_jax.cli", "montecarlo", "-n", "1000000000000", "--no-plots",
+                           "--out", str(tmp_path)], capture_output=True, text=True, timeout=300)
+    elapsed = time.monotonic() - start
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert len(done.stderr.strip().splitlines()) == 1 and "-n 1000000000000 needs about 120 TB of memory" in done.stderr
+    assert elapsed < 10, elapsed  # importing: no compile, no run
+    assert list(tmp_path.iterdir()) == []

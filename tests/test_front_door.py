@@ -72,10 +72,29 @@ def one_error_line(capsys, argv, *expected):
         (["drop", "--scene", "nonexistent", "--no-cache"], ["nonexistent", "embedded scenes"]),
         (["drpo"], ["invalid choice", "drpo"]),
         (["drop", "--out", "/proc/beamdrop-cannot-write-here"], ["--out", "cannot write"]),
+        (["drop", "--scene", ""], ["--scene", "empty", "embedded scene", "default"]),
+        (["impact", "--scene", "  "], ["--scene", "empty"]),
+        (["drop", "--solver", "Tsit5"], ["--solver Tsit5", "needs --method diffrax", "closed_form"]),
+        (["drop", "--solver", "Kvaerno5", "--method", "closed_form"], ["--solver Kvaerno5", "--method diffrax"]),
+        (["drop", "--max-impacts", "51"], ["--max-impacts", "51", "[1, 50]"]),
+        (["montecarlo", "--max-impacts", "0"], ["--max-impacts", "[1, 50]"]),
+        (["montecarlo", "-n", "1000000000000", "--no-plots"], ["-n 1000000000000", "memory", "valid here: -n in [1, "]),
     ],
 )
 def test_bad_arguments_are_one_line_exit_2(argv, expected, capsys):
     one_error_line(capsys, argv, *expected)
+
+
+def test_montecarlo_refuses_a_csv_larger_than_the_free_disk(tmp_path, monkeypatch, capsys):
+    import shutil
+
+    from beamdrop_jax import cli
+
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(10**9, 10**9 - 10**6, 10**6))
+    line = one_error_line(capsys, ["montecarlo", "-n", "100000", "--no-plots", "--out", str(tmp_path)],
+                          "-n 100000", "CSV", "on disk", str(tmp_path), "1 MB free")
+    assert f"valid here: -n in [1, {10**6 // cli.CSV_ROW_BYTES}]" in line
+    assert list(tmp_path.iterdir()) == []
 
 
 # A scene file set of wrong inputs: (file text, words the one-line error must hold besides the file name).
@@ -120,6 +139,24 @@ def test_bad_scene_files_are_one_line_naming_file_and_key(name, tmp_path, capsys
     path = tmp_path / f"{name}.toml"
     path.write_text(text)
     one_error_line(capsys, ["drop", "--scene", str(path), "--no-plots", "--no-cache"], str(path), *words)
+
+
+def test_a_scene_file_that_is_not_utf8_is_named_with_the_byte_and_line(tmp_path, capsys):
+    path = tmp_path / "latin1.toml"
+    path.write_bytes('extends = "default"\n[drop]\n# hauteur mesurée\nheight = 1.0\n'.encode("latin-1"))
+    one_error_line(capsys, ["drop", "--scene", str(path), "--no-plots", "--no-cache"], str(path), "not UTF-8",
+                   "byte 0xe9 at line 3, column 16")
+
+
+def test_empty_mounts_clear_the_extended_scenes_mounts(tmp_path, capsys):
+    held = tmp_path / "held.toml"
+    held.write_text('extends = "jesd22-board"\n[plate]\nedges = "SFSF"\nmounts = []\n')
+    plate = bd.load_scene(held).board
+    assert plate.mounts is None and plate.edges == "SFSF"
+    free = tmp_path / "free.toml"  # the base's edges are free: without its screws the plate is not held
+    free.write_text('extends = "jesd22-board"\n[plate]\nmounts = []\n')
+    one_error_line(capsys, ["drop", "--scene", str(free), "--no-plots", "--no-cache"], str(free), "[plate]",
+                   "edges = 'FFFF'", "needs at least 3 mounts")
 
 
 def test_scene_files_extend_or_give_everything(tmp_path):
@@ -376,3 +413,43 @@ def test_a_concrete_scene_closed_over_by_a_users_jit_gives_the_eager_numbers():
               lambda: bd.board_response(scene.board, pulse).peak.stress)]
     for inside, eager in cases:
         assert float(jax.jit(inside)()) == pytest.approx(float(eager()), rel=1e-12)
+
+
+def test_bad_inputs_stop_before_any_computation(tmp_path):
+    """In a fresh process (where any JAX operation compiles first): each bad input is one line and exit 2 with
+    nothing compiled, in a fraction of a second once the package is imported (a compile takes seconds)."""
+    import subprocess
+    import sys
+
+    latin1 = tmp_path / "latin1.toml"
+    latin1.write_bytes('extends = "default"\n# caf\xe9\n'.encode("latin-1"))
+    unheld = tmp_path / "unheld.toml"
+    unheld.write_text('extends = "jesd22-board"\n[plate]\nmounts = []\n')
+    cases = [["drop", "--scene", ""], ["drop", "--solver", "Tsit5"], ["drop", "--scene", str(latin1)],
+             ["drop", "--scene", str(unheld)], ["montecarlo", "-n", "1000000000000"], ["drop", "--max-impacts", "51"],
+             ["montecarlo", "--max-impacts", "0"]]
+    script = """
+import contextlib, io, json, sys, time
+import jax
+compiles = []
+jax.monitoring.register_event_duration_secs_listener(
+    lambda event, duration, **kw: compiles.append(1) if event == "/jax/core/compile/backend_compile_duration" else 0)
+from beamdrop_jax.cli import main
+for argv in json.loads(sys.argv[1]):
+    before, start, err = len(compiles), time.perf_counter(), io.StringIO()
+    with contextlib.redirect_stderr(err):
+        try:
+            code = main(argv + ["--no-plots", "--no-cache", "--out", sys.argv[2]])
+        except SystemExit as stop:
+            code = stop.code
+    print(json.dumps([argv, code, len(compiles) - before, time.perf_counter() - start, err.getvalue()]))
+"""
+    done = subprocess.run([sys.executable, "-c", script, json.dumps(cases), str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    results = [json.loads(line) for line in done.stdout.splitlines()]
+    assert [r[0] for r in results] == cases
+    for argv, code, compiled, seconds, err in results:
+        lines = [line for line in err.splitlines() if not line.startswith("beamdrop: compiling")]
+        assert (code, compiled, len(lines)) == (2, 0, 1), (argv, code, compiled, err)
+        assert seconds < 2.0, (argv, seconds)  # the first one pays for building the parser's scene list

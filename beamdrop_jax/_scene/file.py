@@ -73,8 +73,13 @@ def file_keys(section: str) -> list[str]:
 
 def _read_toml(path: Path, source: str) -> dict:
     try:
-        with open(path, "rb") as fh:
-            return tomllib.load(fh)
+        data = path.read_bytes()
+        return tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as err:
+        line = data.count(b"\n", 0, err.start) + 1
+        column = err.start - (data.rfind(b"\n", 0, err.start) + 1) + 1
+        raise ValueError(f"{source}: not UTF-8 text: byte 0x{data[err.start]:02x} at line {line}, column {column} "
+                         f"(byte offset {err.start}); TOML files are UTF-8 (save it as UTF-8)") from None
     except tomllib.TOMLDecodeError as err:
         raise ValueError(f"{source}: not valid TOML: {err}") from None
     except FileNotFoundError:
@@ -104,9 +109,10 @@ def _section(section: str, table, source: str, hint: str | None = None):
             kwargs[key] = value
             continue
         if section == "plate" and key == "mounts":
-            if not (isinstance(value, list) and value and all(isinstance(p, list) and len(p) == 2 for p in value)):
-                raise ValueError(f"{where} mounts = {value!r}: must be a list of [x, y] pairs in m")
-            kwargs[key] = as_float(value, f"{where} mounts", Range(unit="m"))
+            if not (isinstance(value, list) and all(isinstance(p, list) and len(p) == 2 for p in value)):
+                raise ValueError(f"{where} mounts = {value!r}: must be a list of [x, y] pairs in m (or [] for none)")
+            if value:  # [] is no mounts: it clears those of the scene this one extends
+                kwargs[key] = as_float(value, f"{where} mounts", Range(unit="m"))
             continue
         if section == "plate" and key == "basis":
             if not (isinstance(value, list) and len(value) == 2

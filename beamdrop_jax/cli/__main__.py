@@ -1,0 +1,5 @@
+"""`python -m beamdrop_jax.cli` is the `beamdrop` command."""
+
+from . import run
+
+run()

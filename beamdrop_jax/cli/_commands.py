@@ -1,0 +1,239 @@
+"""One function per `beamdrop` command: call the library, print, save files. No physics here."""
+
+import json
+import math
+from pathlib import Path
+from .._studies.standards import STANDARDS
+from ._helpers import (QUANTITIES, _numerics, _save, _scene, _scene_name)
+
+
+
+def cmd_impact(args, output):
+    import numpy as np
+
+    import beamdrop_jax as bd
+
+    scene = _scene(args)
+    hit = bd.housing_impact(scene, law=args.law)
+    summary = {
+        "striking_corner_from_G_mm": np.asarray(hit.corner) * 1e3,
+        "approach_velocity_m_per_s": hit.v0,
+        **hit.impact.summary(),
+        "centre_of_mass_velocity_jump_m_per_s": hit.dv_G,
+        "spin_jump_rad_per_s": hit.dw,
+        "board_support_jumps_m_per_s": bd.support_jumps(scene, hit),
+    }
+    if bool(hit.flat):
+        summary["contact_mode"] = "flat landing (translation)"
+    output.summary(summary, f"Impact of {_scene_name(args)} ({args.law} restitution; S tangential, C normal)")
+    if not args.no_plots:
+        fig = bd.plot_impact(hit.B, hit.v0, scene.contact.friction, scene.contact.restitution, law=args.law)
+        _save(output, fig, "impact.png", args)
+
+
+def cmd_drop(args, output):
+    import numpy as np
+
+    import beamdrop_jax as bd
+
+    scene = _scene(args)
+    numerics = _numerics(args)
+    if args.gauge is not None and not 0 <= args.gauge * 1e-3 <= float(scene.board.length):
+        raise ValueError(f"--gauge {args.gauge:g} mm is off the board: valid [0, {float(scene.board.length) * 1e3:g}] "
+                         "mm from end A")
+    plate = scene.board.SURFACE
+    if plate:  # a gauge at the centre (where JESD22-B111 measures) and one at --gauge on the centre line
+        gauges = [(float(scene.board.length) / 2, 0.0)] + ([(args.gauge * 1e-3, 0.0)] if args.gauge is not None else [])
+        board_text = (f"; plate {float(scene.board.length) * 1e3:g} x {float(scene.board.width) * 1e3:g} mm, edges "
+                      f"{scene.board.edges}" + ("" if scene.board.mounts is None
+                                                else f", {scene.board.mounts.shape[0]} mounts"))
+    else:
+        gauges = None
+        board_text = "" if scene.board.ends == "pinned" else f"; board ends {scene.board.ends}"
+    res = bd.simulate(scene, numerics, gauges=gauges)
+    tau = float(scene.contact.duration)
+    output.report["scene"] = args.scene or "default"
+    output.summary(res.summary(),
+                   f"Drop of {_scene_name(args)}: {float(scene.drop.height):g} m onto a corner at "
+                   f"{math.degrees(float(scene.drop.orientation)):.1f} deg, "
+                   + (f"half-sine contact {tau * 1e3:g} ms" if tau > 0 else "ideal impulse (contact duration 0)")
+                   + board_text)
+    if numerics.max_impacts > 1:
+        imp = res.impacts
+        rows = [{"impact": i + 1, "t_ms": float(imp.t[i]) * 1e3, "corner_from_G_mm": np.asarray(imp.corner[i]) * 1e3,
+                 "approach_speed_m_per_s": float(imp.approach_speed[i]), "impulse_Ns": np.asarray(imp.P[i]),
+                 "support_jumps_m_per_s": np.asarray(imp.support_jumps[i])} for i in range(int(imp.count))]
+        from .._common.report import plain
+
+        output.report["impacts_table"] = plain(rows)
+        output.say(f"Impacts ({int(imp.count)} of at most {numerics.max_impacts}; ended: "
+                   f"{bd.Ending(int(imp.ending)).name.lower().replace('_', ' ')})")
+        output.say(f"  {'#':>2} {'t (ms)':>9} {'corner (mm)':>16} {'approach (m/s)':>15} {'Pt, Pn (N s)':>20} "
+                   f"{'dvA, dvB (m/s)':>17}")
+        for r in plain(rows):
+            output.say(f"  {r['impact']:>2} {r['t_ms']:>9.3f} {'({:.1f}, {:.1f})'.format(*r['corner_from_G_mm']):>16} "
+                       f"{r['approach_speed_m_per_s']:>15.4f} {'{:.4f}, {:.4f}'.format(*r['impulse_Ns']):>20} "
+                       f"{'{:.3f}, {:.3f}'.format(*r['support_jumps_m_per_s']):>17}")
+    for note in bd.response_notes(scene, res):
+        output.say(f"  note: {note}")
+        output.report.setdefault("notes", []).append(note)
+    if plate:
+        from .._common.report import summary_text, write_csv
+
+        g = res.gauges
+        rows = [{"t_ms": float(t) * 1e3, **{f"gauge{i + 1}_microstrain": float(g.strain[i, j]) * 1e6
+                                             for i in range(len(gauges))}} for j, t in enumerate(np.asarray(g.t))]
+        output.wrote(write_csv(rows, Path(args.out) / "gauges.csv"))
+        readings = [{"x_mm": gx * 1e3, "y_mm": gy * 1e3, "peak_strain_microstrain": float(g.peak_strain[i]) * 1e6,
+                     "peak_time_ms": float(g.peak_time[i]) * 1e3} for i, (gx, gy) in enumerate(gauges)]
+        output.report["gauges"] = readings
+        for i, reading in enumerate(readings):
+            output.say(summary_text(reading, f"Gauge {i + 1} (largest principal surface strain)"))
+        if not args.no_plots:
+            strain_map = bd.plate_strain_map(scene, res, numerics)
+            _save(output, bd.plot_scene(scene, res), "scene.png", args)
+            _save(output, bd.plot_plate_strain(strain_map, res, scene.board), "strain_map.png", args)
+            _save(output, bd.plot_impacts(scene, res), "impact.png", args)
+        return
+    if args.gauge is not None:
+        fields = bd.response_fields(scene, numerics, x=[args.gauge * 1e-3], nt=2001)
+        from .._common.report import write_csv
+
+        rows = [{"t_ms": t * 1e3, "strain_microstrain": e * 1e6, "stress_MPa": s * 1e-6}
+                for t, e, s in zip(np.asarray(fields.t), np.asarray(fields.strain[0]), np.asarray(fields.stress[0]))]
+        output.wrote(write_csv(rows, Path(args.out) / f"gauge_{args.gauge:g}mm.csv"))
+        peak = int(np.argmax(np.abs(np.asarray(fields.strain[0]))))
+        output.summary({"gauge_x_mm": args.gauge, "gauge_peak_strain_microstrain": rows[peak]["strain_microstrain"],
+                        "gauge_peak_time_ms": rows[peak]["t_ms"]}, "Gauge (signed strain of the normal-side face)")
+    if not args.no_plots:
+        fields = bd.response_fields(scene, numerics)
+        _save(output, bd.plot_scene(scene, res), "scene.png", args)
+        _save(output, bd.plot_stress_map(fields, res), "stress_map.png", args)
+        _save(output, bd.plot_deflected_board(fields, res, thickness=scene.board.thickness), "deflection.png", args)
+        _save(output, bd.plot_impacts(scene, res), "impact.png", args)
+
+
+def cmd_campaign(args, output):
+    import beamdrop_jax as bd
+
+    scene = _scene(args)
+    result = bd.campaign(scene, args.standard, _numerics(args), mass=args.mass, height=args.height)
+    output.report |= {"standard": args.standard, "drops": result.rows()}
+    output.say(f"{args.standard}: {STANDARDS[args.standard]}")
+    output.say(result.table())
+    output.wrote(result.to_csv(Path(args.out) / f"campaign-{args.standard}.csv"))
+    if not args.no_plots:
+        _save(output, bd.plot_campaign(result, scene=args.scene or "default"), f"campaign-{args.standard}.png", args)
+
+
+def cmd_sensitivity(args, output):
+    import beamdrop_jax as bd
+    from .._common.report import write_csv
+
+    scene = _scene(args)
+    numerics = _numerics(args)
+    rows = bd.sensitivities(scene, numerics, quantity=args.quantity)
+    unit, scale = QUANTITIES[args.quantity]
+    peak = {"stress": bd.peak_stress, "strain": bd.peak_strain, "deflection": bd.peak_deflection}[args.quantity]
+    value = float(peak(scene, numerics)) * scale
+    table = [r.row(unit, scale) for r in rows]
+    output.report |= {f"peak_{args.quantity}_{unit}": value, "fields": table}
+    output.say(f"Sensitivity of the peak {args.quantity} ({value:.6g} {unit}) to every scene field, largest "
+               "elasticity (% change of the peak per % change of the field) first; fields whose value is 0 have no "
+               "elasticity and follow, largest derivative first")
+    output.say(f"  {'field':<30} {'value':>12} {'unit':<7} {'d(peak)/d(field)':>17} {'per':<20} {'elasticity':>10}")
+    for r in table:
+        e = "n/a" if r["elasticity"] is None else f"{r['elasticity']:.4f}"
+        output.say(f"  {r['field']:<30} {r['value']:>12.6g} {r['unit']:<7} {r['derivative']:>17.6g} "
+                   f"{r['derivative_unit']:<20} {e:>10}")
+    output.wrote(write_csv(table, Path(args.out) / f"sensitivity-{args.quantity}.csv"))
+
+
+def cmd_optimize(args, output):
+    import numpy as np
+
+    import beamdrop_jax as bd
+    from .._common.report import write_csv
+
+    scene = _scene(args)
+    orientations = np.radians(args.orientations)
+    numerics = _numerics(args, n_modes=args.n_modes or 8)
+    res = bd.optimize_placement(scene, orientations, args.heights, objective=args.objective, alpha=args.alpha,
+                                numerics=numerics, steps=args.steps, starts=args.starts, margin=args.margin * 1e-3,
+                                progress=not args.json)
+    output.summary(res.summary(scene), f"Board placement: {args.objective} peak stress over {res.n_drops} drops "
+                                       f"({res.n_evaluations} evaluations with gradients)")
+    history = [{"step": i, "objective_MPa": v / 1e6, "c1_mm": p[0] * 1e3, "c2_mm": p[1] * 1e3,
+                "angle_deg": math.degrees(p[2])}
+               for i, (v, p) in enumerate(zip(np.asarray(res.history).tolist(), np.asarray(res.path).tolist()))]
+    output.wrote(write_csv(history, Path(args.out) / "optimize-history.csv"))
+    if not args.no_plots:
+        landscape = bd.placement_landscape(scene, res, orientations, args.heights, alpha=args.alpha,
+                                           numerics=numerics, margin=args.margin * 1e-3)
+        _save(output, bd.plot_placement(scene, res, landscape), "placement.png", args)
+
+
+def cmd_montecarlo(args, output):
+    import dataclasses
+
+    import jax
+    import numpy as np
+
+    import beamdrop_jax as bd
+    from .._common.report import write_csv_columns
+
+    scene = _scene(args)
+    numerics = bd.Numerics(n_modes=args.n_modes) if args.n_modes else None
+    if args.max_impacts:
+        numerics = (dataclasses.replace(numerics, max_impacts=args.max_impacts) if numerics
+                    else bd.montecarlo_numerics(scene, max_impacts=args.max_impacts))
+    # A chunk larger than -n would only be padding (the drops and results do not depend on the chunk size).
+    batch_size = args.batch_size and min(args.batch_size, args.n)
+    res = bd.montecarlo(scene, args.n, jax.random.PRNGKey(args.seed), numerics=numerics,
+                        batch_size=batch_size, progress=not args.json)
+    limit = args.allowable_microstrain * 1e-6
+    output.summary(res.report(limit, "strain"),
+                   f"{res.n} random drops (orientation uniform on [0, 360) deg); drops outside the model are left "
+                   "out of every statistic")
+    # In float64 whatever the run's precision, and in degrees as math.degrees rounds: the numbers the CSV held when
+    # it was written a dict per drop.
+    f64 = lambda v: np.asarray(v, dtype=np.float64)  # noqa: E731
+    orientation = np.broadcast_to(f64(res.samples.drop.orientation), (res.n,))
+    masks, which = np.unique(np.asarray(res.flags), return_inverse=True)
+    names = np.array(["|".join(bd.Flag.describe(m)) for m in masks.tolist()], dtype=object)
+    columns = {"orientation_deg": orientation * (180.0 / math.pi), "peak_stress_MPa": f64(res.peak_stress) / 1e6,
+               "peak_strain_microstrain": f64(res.peak_strain) * 1e6,
+               "peak_deflection_mm": f64(res.peak_deflection) * 1e3, "flags": names[which.reshape(-1)]}
+    output.wrote(write_csv_columns(columns, Path(args.out) / "montecarlo-drops.csv", progress=not args.json))
+    if not args.no_plots:
+        _save(output, bd.plot_montecarlo(res, limit=limit, quantity="strain"), "montecarlo.png", args)
+
+
+def cmd_bench(args, output):
+    import beamdrop_jax as bd
+
+    if args.latency:
+        from .._bench import latency_bench
+
+        output.summary(latency_bench(repeats=args.repeats), "beamdrop bench --latency: wall time against a bare "
+                                                            "JAX process, median of the repeats")
+        return
+    from .._bench import CLATTER, PEERS, VARIED, ratio_at
+
+    level = "tiny" if args.tiny else "quick" if args.quick else "full"
+    output.say(f"beamdrop bench ({level}): peak-stress error against 32 modes refined (f64), seconds per drop")
+    rows = bd.run_bench(_scene(args), level=level, out=Path(args.out))
+    ratios = {f"speed_ratio_at_1pct_error_vs_{peer[6:].replace(' ', '_')}": ratio_at(rows, peer) for peer in PEERS}
+    ratios["varying_duration_speed_ratio_at_1pct_error_vs_numpy_closed_form"] = ratio_at(
+        rows, "peer: numpy closed form", workload=VARIED)
+    ratios["clattering_speed_ratio_at_1pct_error_vs_numpy_closed_form"] = ratio_at(
+        rows, "peer: numpy closed form", workload=CLATTER)
+    output.summary(ratios, "Speed ratios at 1 % error (n/a: no row meets it)")
+    output.wrote(Path(args.out) / "bench.json")
+    if not args.no_plots:
+        study = json.loads((Path(args.out) / "bench.json").read_text())["stability"]
+        _save(output, bd.plot_bench(rows), "bench.png", args)
+        _save(output, bd.plot_stability(study), "stability.png", args)
+
+
+# ---------------------------------------------------------------------------------------------------------------

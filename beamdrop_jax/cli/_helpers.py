@@ -1,0 +1,247 @@
+"""The command line's argument types, checks made before computing, output and saved files."""
+
+import argparse
+import contextlib
+import functools
+import math
+import os
+import sys
+import threading
+from pathlib import Path
+
+
+# Clattering drops with restitution up to 0.8 come to rest or pivot within 50 impacts (the embedded scenes, every
+# orientation). Each pair of impacts is a term of the compiled search (its size and compile time grow as K^2: on 2
+# cores K = 3, 20, 50 compile in 6, 14, 54 s and take 0.3, 0.5, 1.3 GB).
+MAX_IMPACTS = 50
+# What a Monte-Carlo drop costs, measured on `montecarlo -n 2000000` (float64): 113 bytes of memory per drop
+# without figures and 240 with them, over 0.5 GB for the process itself; 75 bytes of CSV per drop.
+DROP_BYTES, DROP_BYTES_PLOTTED, PROCESS_BYTES, CSV_ROW_BYTES = 120, 250, 600 << 20, 76
+QUANTITIES = {"stress": ("MPa", 1e-6), "strain": ("microstrain", 1e6), "deflection": ("mm", 1e3)}
+
+
+@functools.cache
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("beamdrop-jax")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        sys.stderr.write(f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+        sys.exit(2)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Argument types: each rejects a bad value with a message that names the valid range and unit.
+
+
+def _int_at_least(lo):
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number (valid: >= {lo})") from None
+        if value < lo:
+            raise argparse.ArgumentTypeError(f"{value} is out of range (valid: a whole number >= {lo})")
+        return value
+
+    return parse
+
+
+def _int_in(lo, hi):
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number (valid: [{lo}, {hi}])") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{value} is out of range (valid: a whole number in [{lo}, {hi}])")
+        return value
+
+    return parse
+
+
+def _float_in(lo, hi, unit, lo_open=False):
+    def parse(text):
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number (valid: {unit})") from None
+        low_ok = value > lo if lo_open else value >= lo
+        if not (math.isfinite(value) and low_ok and value <= hi):
+            bracket = "(" if lo_open else "["
+            raise argparse.ArgumentTypeError(f"{text} is out of range (valid: {bracket}{lo:g}, {hi:g}] {unit})")
+        return value
+
+    return parse
+
+
+def _microstrain(text):
+    value = _float_in(0.0, 1e5, "microstrain", lo_open=True)(text)
+    if value < 1.0:
+        raise argparse.ArgumentTypeError(
+            f"{text} microstrain is below 1: give the limit in microstrain (2000 means 0.2 %), not as a fraction"
+        )
+    return value
+
+
+def _degrees_list(text):
+    """'15:75:7' -> 7 angles from 15 to 75 degrees; '30,45' -> those angles (degrees)."""
+    number = _float_in(-3600.0, 3600.0, "deg")
+    if ":" in text:
+        parts = text.split(":")
+        if len(parts) != 3:
+            raise argparse.ArgumentTypeError(f"{text!r}: write 'low:high:count' (e.g. 15:75:7) or 'a,b,c' in degrees")
+        import numpy as np
+
+        return np.linspace(number(parts[0]), number(parts[1]), _int_at_least(1)(parts[2])).tolist()
+    try:
+        return [number(v) for v in text.split(",")]
+    except argparse.ArgumentTypeError as err:
+        raise argparse.ArgumentTypeError(f"{text!r}: {err} (write 'a,b,c' or 'low:high:count' in degrees)") from None
+
+
+def _scene_arg(text):
+    if not text.strip():  # not the default scene: an unset variable in a script (--scene "$SCENE") would be silent
+        from .._scene.file import embedded_scenes
+
+        raise argparse.ArgumentTypeError(f"{text!r} is empty (valid: a scene TOML file, or an embedded scene: "
+                                         f"{', '.join(embedded_scenes())})")
+    return text
+
+
+def _heights(text):
+    height = _float_in(0.0, 1e4, "m", lo_open=True)
+    return [height(v) for v in text.split(",")]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Output: tables for people, one JSON object for programs.
+
+
+class _Output:
+    def __init__(self, args):
+        self.json = getattr(args, "json", False)
+        self.report = {}
+
+    def say(self, text=""):
+        if not self.json:
+            print(text)
+
+    def wrote(self, path):
+        print(f"wrote {path}", file=sys.stderr if self.json else sys.stdout)
+        self.report.setdefault("files", []).append(str(path))
+        _active["files"].append(path)
+
+    def summary(self, summary: dict, title: str):
+        from .._common.report import plain, summary_text
+
+        self.report.update(plain(summary))
+        self.say(summary_text(summary, title))
+
+
+def _scene(args):
+    import beamdrop_jax as bd
+
+    return bd.load_scene(args.scene) if args.scene else bd.Scene.default()
+
+
+def _scene_name(args) -> str:
+    return f"scene {args.scene}" if args.scene else "the default scene"
+
+
+def _writes_files(args) -> bool:
+    return (not args.no_plots) or args.command in ("campaign", "sensitivity", "montecarlo", "optimize") or bool(
+        getattr(args, "gauge", None)
+    )
+
+
+def _check_out(args):
+    """Create `--out` and prove it writable before any computation."""
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".beamdrop-write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as err:
+        raise ValueError(f"--out {args.out}: cannot write there ({err.strerror or err})") from None
+
+
+def _available_memory() -> int | None:
+    """Bytes of memory a new allocation can still get: the kernel's estimate (MemAvailable: free memory and caches
+    it can drop), within the cgroup's limit in a container; else free (or all) physical memory; None if unknown."""
+    available = None
+    with contextlib.suppress(OSError, ValueError):
+        with open("/proc/meminfo") as f:
+            available = next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
+    for name in ("SC_AVPHYS_PAGES", "SC_PHYS_PAGES"):  # macOS has only the second
+        if available is None:
+            with contextlib.suppress(OSError, ValueError, AttributeError):
+                available = os.sysconf(name) * os.sysconf("SC_PAGE_SIZE")
+    with contextlib.suppress(OSError, ValueError):
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit != "max":
+            room = int(limit) - int(Path("/sys/fs/cgroup/memory.current").read_text())
+            available = room if available is None else min(available, room)
+    return available
+
+
+def _size(n_bytes: float) -> str:
+    for unit in ("bytes", "KB", "MB", "GB", "TB", "PB"):
+        if n_bytes < 1000 or unit == "PB":
+            return f"{n_bytes:.0f} {unit}" if unit == "bytes" else f"{n_bytes:.3g} {unit}"
+        n_bytes /= 1000
+
+
+def _check_montecarlo_fits(args):
+    """Refuse an `-n` whose results cannot fit in memory or whose CSV cannot fit on the disk of `--out`, before
+    anything runs (an impossible -n otherwise fails inside XLA after a long wait, or fills the disk)."""
+    import shutil
+
+    per_drop = DROP_BYTES if args.no_plots else DROP_BYTES_PLOTTED
+    memory, free = _available_memory(), shutil.disk_usage(args.out).free
+    fits = [free // CSV_ROW_BYTES] + ([] if memory is None else [max(0, memory - PROCESS_BYTES) // per_drop])
+    valid = f"valid here: -n in [1, {min(fits)}]" if min(fits) >= 1 else "too little is left for any -n"
+    if memory is not None and PROCESS_BYTES + args.n * per_drop > memory:
+        raise ValueError(f"-n {args.n} needs about {_size(PROCESS_BYTES + args.n * per_drop)} of memory ({per_drop} "
+                         f"bytes per drop{'' if args.no_plots else ' with figures'}) but {_size(memory)} is "
+                         f"available; {valid}" + ("" if args.no_plots else " (more with --no-plots)"))
+    if args.n * CSV_ROW_BYTES > free:
+        raise ValueError(f"-n {args.n}: the CSV of every drop needs about {_size(args.n * CSV_ROW_BYTES)} on disk "
+                         f"({CSV_ROW_BYTES} bytes per drop) but {args.out} has {_size(free)} free; {valid}")
+
+
+# The command running now and the files it has completed: what an interrupt's message names.
+_active = {"command": None, "files": [], "claim": threading.Lock()}
+
+
+def _save(output, fig, name, args):
+    import matplotlib.pyplot as plt
+
+    from .._common.report import atomic_open
+
+    path = Path(args.out) / name
+    try:
+        with atomic_open(path, "wb") as f:
+            fig.savefig(f, format=path.suffix[1:], dpi=120)
+    finally:
+        plt.close(fig)
+    output.wrote(path)
+
+
+def _numerics(args, **overrides):
+    import beamdrop_jax as bd
+
+    kw = {k: getattr(args, k) for k in ("method", "solver", "n_modes", "max_impacts") if getattr(args, k, None)}
+    kw.update(overrides)
+    return bd.Numerics(**kw)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Commands.
