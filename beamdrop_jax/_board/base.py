@@ -54,6 +54,7 @@ class AbstractBoard(AbstractModal):
 
     SECTION: ClassVar[str]
     SURFACE: ClassVar[bool]
+    NUMERICS: ClassVar[dict] = {}  # the board's own `Numerics` where the user leaves a field `None`
     TABLE_DURATIONS: ClassVar[bool]  # whether its superposition table can span contact durations
 
     @abc.abstractmethod
