@@ -21,10 +21,33 @@ as scalars, so `jax.grad` reaches every float field.
 Surface strains on the face z = h/2 from the curvatures k_xx = u_xx, k_yy = u_yy, k_xy = u_xy: with
 c = (k_xx + k_yy) / 2 and r = sqrt(((k_xx - k_yy) / 2)^2 + k_xy^2) the principal strains are -(h/2) (c +- r), so the
 largest magnitude is (h/2) (|c| + r); the largest principal plane stress is E (h/2) (|c| / (1 - nu) + r / (1 + nu)).
+
+Where the model stops holding (each check raises a `ValueError` naming the field and its valid range on concrete
+values, and sets a `Flag` bit under `jit`, where the results are NaN):
+- Mechanisms (`Flag.MECHANISM`). A Kirchhoff plate's bending energy vanishes exactly for its rigid motions
+  w = a + b x + c y, so the plate is held iff its supports leave none of them free: a clamped edge, or two supported
+  edges, hold them all; one supported edge leaves the turn about that edge, which the mounts must hold; free edges
+  leave heave and every tilt, which the mounts must hold. The criterion is geometric, so it is exact and cheap, and
+  it is graded by the one length the model does not resolve, `mount_radius`: the plate is refused when some rigid
+  tilt its edges allow moves every mount by less than `mount_radius` per unit slope, i.e. all the mounts lie within
+  `mount_radius` of the tilt's axis (with free edges: of some line, so the mounts' smallest width is below
+  2 `mount_radius`; with one supported edge: of that edge). The plate is then held against that tilt only inside the
+  discs where the point supports' moments are singular and a real screw's head clamps, which the model leaves out:
+  with zero lever it is a mechanism (today's frequency would be 0 to rounding), and just above zero the first
+  frequency falls towards 0 with the lever. On the JESD22 board (132 x 77 x 1 mm, `mount_radius` 3 mm) with a third
+  screw off the line of two, the fundamental in Leissa's parameter omega L^2 sqrt(rho h / D) (L the longer side) is
+  0.0009, 0.035, 0.35, 1.0, 2.0, 3.3 for offsets of 1e-6, 1e-4, 1e-3, 3e-3, 6e-3, 1e-2 m, against 11.6 on its four
+  corner screws and 3.5 for a cantilever clamped along a short edge: offsets below 6 mm are refused.
+- Mounts that the model cannot tell apart (`Flag.MOUNTS_COINCIDE`): two mounts closer than `mount_radius` (one
+  inside the other's disc; identical mounts make the constraint singular, nearly identical ones ill-conditioned).
+- Mount discs (`Flag.MOUNT_OUTSIDE_PLATE`): every mount lies on the plate, and its disc of `mount_radius` too,
+  except where the mount sits on an edge itself (a boundary point support, as Leissa's corner-supported plates):
+  each mount's distance to each edge is 0 or at least `mount_radius`. The peak search stays on the plate.
 """
 
 import functools
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -32,7 +55,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._checks import Flag, Range, combine, float_dtype, flag_if, is_concrete
+from ._checks import Flag, Range, combine, float_dtype, flag_if, is_concrete, on_host
 
 EDGE_CODES = {"F": 0, "S": 1, "C": 2}  # the power of the distance to the edge in the Ritz basis
 """Edge conditions in Leissa's letters: free, simply supported, clamped."""
@@ -150,8 +173,10 @@ class Plate(eqx.Module):
     Leissa's letters (S supported, C clamped, F free; "SFSF": held at both ends, free sides); `mounts` points
     (x, y) (m, x from end A, y from the centre line) where the plate is held (u = 0, rotation free; screws,
     standoffs), with peaks searched outside discs of `mount_radius` around them (the bending moments are singular
-    at a point support). Edges and mounts move with the housing; clamps rotate with it. `damping_ratio` is the
-    modal damping ratio, the same for every mode.
+    at a point support). `edges=None` means "FFFF" (held by its mounts only) when mounts are given, else "SFSF".
+    Edges and mounts move with the housing; clamps rotate with it. `damping_ratio` is the modal damping ratio, the
+    same for every mode. The supports must hold the plate, the mounts' discs lie on it and the plate be thin (see
+    the module notes: `ValueError` on concrete values, `flags()` under `jit`).
     """
 
     length: Float[Array, ""]
@@ -178,10 +203,12 @@ class Plate(eqx.Module):
     }
 
     def __init__(self, length=0.132, width=0.077, thickness=1.0e-3, youngs_modulus=22e9, density=1900.0,
-                 poisson_ratio=0.2, damping_ratio=0.0, edges="SFSF", mounts=None, mount_radius=2.5e-3,
+                 poisson_ratio=0.2, damping_ratio=0.0, edges=None, mounts=None, mount_radius=2.5e-3,
                  basis=BASIS):
         from ._scene import _init_fields
 
+        if edges is None:  # DESIGN.md section 4: with mounts and no edges, held by the mounts only
+            edges = "SFSF" if mounts is None else "FFFF"
         if not (isinstance(edges, str) and len(edges) == 4 and set(edges) <= set(EDGE_CODES)):
             raise ValueError(f"Plate.edges = {edges!r}; valid: four letters of S (supported), C (clamped), F (free) "
                              "for the edges x = 0, y = -W/2, x = L, y = +W/2, e.g. 'SFSF', 'SSSS', 'FFFF'")
@@ -205,17 +232,15 @@ class Plate(eqx.Module):
         from ._scene import _check_ranges
 
         _check_ranges(self)
-        if self.mounts is not None and is_concrete(self):
-            m = np.asarray(self.mounts)
-            L, W = np.asarray(self.length)[..., None], np.asarray(self.width)[..., None]  # batches too
-            if not (np.all((m[..., 0] >= 0) & (m[..., 0] <= L)) and np.all(np.abs(m[..., 1]) <= W / 2)):
-                raise ValueError(f"Plate.mounts = {m.tolist()} m; valid: 0 <= x <= length = {np.max(L):g} m and "
-                                 f"|y| <= width/2 = {np.max(W) / 2:g} m")
-        if is_concrete(self) and _single_precision(self):
-            raise ValueError(PRECISION_MESSAGE)
-        if self.edges == "FFFF" and (self.mounts is None or self.mounts.shape[-2] < 3):
-            raise ValueError("a plate with free edges (Plate.edges = 'FFFF') needs at least 3 mounts not on one "
-                             "line: it would move as a rigid body")
+        static = _static_mechanism(self)
+        if static:
+            raise ValueError(static)
+        if is_concrete(self):
+            if _single_precision(self):
+                raise ValueError(PRECISION_MESSAGE)
+            problem = _plate_problem(on_host(self))
+            if problem:
+                raise ValueError(problem)
 
     @property
     def bending_stiffness(self) -> Float[Array, ""]:
@@ -227,11 +252,193 @@ class Plate(eqx.Module):
         from ._scene import _range_flags
 
         flags = combine(_range_flags(self), flag_if(_single_precision(self), Flag.PRECISION))
-        if self.mounts is not None:
-            inside = (self.mounts[..., 0] >= 0) & (self.mounts[..., 0] <= jnp.asarray(self.length)[..., None]) & \
-                     (jnp.abs(self.mounts[..., 1]) <= jnp.asarray(self.width)[..., None] / 2)
-            flags = combine(flags, flag_if(~jnp.all(inside, axis=-1), Flag.BOARD_OUTSIDE_HOUSING))
-        return flags
+        g = _support_geometry(jnp, self)
+        return combine(flags, flag_if(jnp.any(g.off_plate | g.crossing, axis=-1), Flag.MOUNT_OUTSIDE_PLATE),
+                       flag_if(~(g.hold >= self.mount_radius), Flag.MECHANISM),
+                       flag_if(jnp.any(g.coincide, axis=-1), Flag.MOUNTS_COINCIDE))
+
+
+_EDGE_NAMES = ("x = 0", "y = -W/2", "x = L", "y = +W/2")
+
+
+def _edge_distances(xp, plate):
+    """Each mount's signed distance (m) to the edges x = 0, y = -W/2, x = L, y = +W/2 (in `edges` order), (..., m, 4);
+    negative off the plate."""
+    L, W = (xp.asarray(v)[..., None] for v in (plate.length, plate.width))
+    x, y = plate.mounts[..., 0], plate.mounts[..., 1]
+    return xp.stack(xp.broadcast_arrays(x, y + W / 2, L - x, W / 2 - y), axis=-1)
+
+
+class _Supports(NamedTuple):
+    """The support geometry of a plate (arrays with the plate's batch axes): per mount `off_plate` (not on the
+    plate, or not finite) and `crossing` (its disc across an edge it does not sit on), per pair of mounts
+    `coincide` (closer than `mount_radius`; pairs (i, j), i < j, in `np.triu_indices` order), and `hold`: over the
+    rigid tilts its edges leave free, the least of the largest distance of a mount from the tilt's axis (m; inf
+    where the edges hold every rigid motion, 0 for a mechanism)."""
+
+    off_plate: Array
+    crossing: Array
+    coincide: Array
+    hold: Array
+
+
+def _held_by_edges(edges: str) -> bool:
+    """A clamped edge, or two supported edges, leave the plate no rigid motion."""
+    return "C" in edges or edges.count("S") >= 2
+
+
+def _support_geometry(xp, plate) -> _Supports:
+    """The plate's `_Supports` with `xp` (NumPy for eager checks and messages, jax.numpy under tracing; no gradient
+    flows through a check, and none is built: the distances' square roots are singular where mounts coincide)."""
+    if xp is jnp:
+        plate = jax.tree_util.tree_map(jax.lax.stop_gradient, plate)
+    L, W, r = (xp.asarray(v) for v in (plate.length, plate.width, plate.mount_radius))
+    batch = xp.broadcast_shapes(xp.shape(L), xp.shape(W), xp.shape(r),
+                                () if plate.mounts is None else xp.shape(plate.mounts)[:-2])
+    inf = xp.full(batch, xp.inf, dtype=xp.result_type(L))
+    if plate.mounts is None:
+        none = xp.zeros(batch + (0,), dtype=bool)
+        return _Supports(none, none, none, inf if _held_by_edges(plate.edges) else xp.zeros_like(inf))
+    d = _edge_distances(xp, plate)
+    m = plate.mounts.shape[-2]
+    size = xp.maximum(L, W)[..., None, None]
+    on_edge = xp.abs(d) <= 1e-9 * size  # a mount on an edge: a boundary point support (a corner: two edges)
+    off_plate = ~xp.all((d >= 0) | on_edge, axis=-1)
+    crossing = xp.any((d < r[..., None, None]) & ~on_edge, axis=-1) & ~off_plate
+    i, j = np.triu_indices(m, 1)
+    sep = plate.mounts[..., j, :] - plate.mounts[..., i, :]  # (..., pairs, 2)
+    dist = xp.sqrt(xp.sum(sep * sep, axis=-1))
+    coincide = ~(dist >= r[..., None])
+    if _held_by_edges(plate.edges):
+        hold = inf
+    elif "S" in plate.edges:  # the turn about the one supported edge: held by the mount farthest from it
+        hold = xp.max(xp.maximum(d[..., plate.edges.index("S")], 0.0), axis=-1)
+    elif m < 3:  # free edges: every mount lies on one line
+        hold = xp.zeros_like(inf)
+    else:
+        # Free edges: the mounts' smallest width (the narrowest strip holding them all), halved. It is attained
+        # across one side of their convex hull, so the directions normal to the pairs' separations are enough.
+        apart = dist > 0
+        n = xp.stack([-sep[..., 1], sep[..., 0]], axis=-1) / xp.where(apart, dist, 1.0)[..., None]
+        proj = xp.sum(plate.mounts[..., None, :, :] * n[..., :, None, :], axis=-1)  # (..., pairs, m)
+        widths = xp.where(apart, xp.max(proj, axis=-1) - xp.min(proj, axis=-1), xp.inf)
+        width = xp.min(widths, axis=-1)
+        hold = xp.where(width < xp.inf, width / 2, 0.0)  # every pair coincides: a single point
+    return _Supports(off_plate, crossing, coincide, xp.broadcast_to(hold, batch))
+
+
+def _static_mechanism(plate: Plate) -> str | None:
+    """The message for a plate whose edges, without mounts, leave it a rigid motion (known from the edges alone,
+    so raised under tracing too), or None."""
+    if plate.mounts is not None or _held_by_edges(plate.edges):
+        return None
+    if "S" in plate.edges:
+        edge = _EDGE_NAMES[plate.edges.index("S")]
+        return (f"Plate.edges = {plate.edges!r} without mounts is a mechanism: the plate turns freely about its one "
+                f"supported edge {edge}; valid: a mount at least mount_radius from that edge (Plate.mounts), a second "
+                "supported edge or a clamped one")
+    return (f"a plate with free edges (Plate.edges = {plate.edges!r}) and no mounts moves as a rigid body (a "
+            "mechanism); valid: at least 3 mounts not on one line (Plate.mounts), or supported or clamped edges")
+
+
+def _fmt_points(points) -> str:
+    return "[" + ", ".join(f"({x:.6g}, {y:.6g})" for x, y in np.asarray(points).reshape(-1, 2)) + "]"
+
+
+def _plate_problem(plate: Plate) -> str | None:
+    """The first problem of a concrete plate (NumPy fields; in a batch, the first plate with one), as a message
+    naming the field and its valid range, or None."""
+    batch = np.broadcast_shapes(*(np.shape(v) for v in (plate.length, plate.width, plate.thickness,
+                                                         plate.mount_radius)),
+                                () if plate.mounts is None else np.shape(plate.mounts)[:-2])
+    if batch:
+        g = _support_geometry(np, plate)
+        bad = np.zeros(batch, bool)
+        if plate.mounts is not None:
+            bad = bad | np.broadcast_to(np.any(g.off_plate | g.crossing, axis=-1) | np.any(g.coincide, axis=-1)
+                                        | ~(g.hold >= plate.mount_radius), batch)
+        if not np.any(bad):
+            return None
+        k = np.unravel_index(int(np.argmax(bad)), batch)
+        pick = lambda v, tail=0: np.broadcast_to(v, batch + np.shape(v)[np.ndim(v) - tail:])[k]  # noqa: E731
+        fields = (pick(plate.length), pick(plate.width), pick(plate.thickness), pick(plate.mount_radius))
+        single = eqx.tree_at(lambda p: (p.length, p.width, p.thickness, p.mount_radius), plate, fields)
+        if plate.mounts is not None:
+            single = eqx.tree_at(lambda p: p.mounts, single, pick(plate.mounts, 2))
+        return _plate_problem(single)
+    L, W, r, h = (float(v) for v in (plate.length, plate.width, plate.mount_radius, plate.thickness))
+    if plate.mounts is None:
+        return None
+    g = _support_geometry(np, plate)
+    mounts = np.asarray(plate.mounts)
+    if np.any(g.off_plate):
+        return (f"Plate.mounts = {mounts.tolist()} m; valid: 0 <= x <= length = {L:g} m and |y| <= width/2 = "
+                f"{W / 2:g} m (mount {int(np.argmax(g.off_plate))} is off the plate; Flag.MOUNT_OUTSIDE_PLATE)")
+    if np.any(g.crossing):
+        k = int(np.argmax(g.crossing))
+        d = _edge_distances(np, plate)[k]
+        e = int(np.argmin(np.where((d < r) & (np.abs(d) > 1e-9 * max(L, W)), d, np.inf)))
+        return (f"Plate.mounts[{k}] = ({mounts[k, 0]:g}, {mounts[k, 1]:g}) m: its disc of mount_radius = {r:g} m "
+                f"crosses the edge {_EDGE_NAMES[e]} ({d[e]:.3g} m away), so the plate's peak would be sought off "
+                "the plate (Flag.MOUNT_OUTSIDE_PLATE); valid: each mount's disc on the plate, "
+                + (f"{r:g} <= x <= {L - r:g} m and |y| <= {W / 2 - r:g} m" if 2 * r <= min(L, W) else
+                   f"which needs Plate.mount_radius <= min(length, width) / 2 = {min(L, W) / 2:g} m")
+                + ", or the mount on the edge itself (a boundary point support)")
+    if not g.hold >= r:
+        return _mechanism_message(plate, float(g.hold), r)
+    if np.any(g.coincide):
+        p = int(np.argmax(g.coincide))
+        i, j = (int(v[p]) for v in np.triu_indices(mounts.shape[0], 1))
+        gap = float(np.hypot(*(mounts[j] - mounts[i])))
+        return (f"Plate.mounts {i} and {j} are {gap:.3g} m apart, closer than mount_radius = {r:g} m: the model "
+                "cannot tell them apart (one lies in the other's disc, where nothing is resolved; identical mounts "
+                f"make the constraint singular) (Flag.MOUNTS_COINCIDE); valid: mounts at least {r:g} m apart")
+    return None
+
+
+def _mechanism_message(plate: Plate, hold: float, r: float) -> str:
+    mounts = np.asarray(plate.mounts)
+    what = "a mechanism" if hold <= 1e-12 * max(float(plate.length), float(plate.width)) else "a near-mechanism"
+    if "S" in plate.edges:
+        edge = _EDGE_NAMES[plate.edges.index("S")]
+        return (f"Plate.mounts = {_fmt_points(mounts)} m with Plate.edges = {plate.edges!r} leave {what} "
+                f"(Flag.MECHANISM): the plate turns about its one supported edge {edge}, and every mount "
+                f"(0 to {mounts.shape[0] - 1}) lies within {hold:.3g} m of that edge, so the turn is held only inside "
+                f"the mount discs the model leaves out; valid: a mount at least mount_radius = {r:g} m from the "
+                "edge, or a second supported or a clamped edge")
+    # Free edges: the axis is the centre line of the narrowest strip holding the mounts.
+    m = mounts.shape[0]
+    i, j = np.triu_indices(m, 1)
+    sep = mounts[j] - mounts[i]
+    dist = np.hypot(sep[:, 0], sep[:, 1])
+    if m >= 3 and np.any(dist > 0):
+        n = np.stack([-sep[:, 1], sep[:, 0]], -1) / np.where(dist > 0, dist, 1.0)[:, None]
+        proj = n @ mounts.T
+        p = int(np.argmin(np.where(dist > 0, proj.max(-1) - proj.min(-1), np.inf)))
+        where = (f"mounts {', '.join(map(str, range(m)))} all lie within {hold:.3g} m of one line (along mounts "
+                 f"{int(i[p])} and {int(j[p])}): " + ("collinear" if what == "a mechanism" else "nearly collinear"))
+    elif m >= 2:
+        where = f"mounts {', '.join(map(str, range(m)))} lie on one line (fewer than 3 mounts)"
+    else:
+        where = "one mount holds a single point"
+    close = [(int(a), int(b)) for a, b, dd in zip(i, j, dist) if dd < r]
+    if close:
+        where += "; " + ", ".join(f"mounts {a} and {b} (nearly) coincident" for a, b in close) + (
+            " (Flag.MOUNTS_COINCIDE: closer than mount_radius)")
+    return (f"Plate.mounts = {_fmt_points(mounts)} m with free edges (Plate.edges = {plate.edges!r}) leave {what} "
+            f"(Flag.MECHANISM): {where}, so the plate tilts about that line held only inside the mount discs the "
+            f"model leaves out; valid: at least 3 mounts not on one line, spread at least 2 x mount_radius = "
+            f"{2 * r:g} m across any line (no line within mount_radius of every mount), or supported or clamped "
+            "edges")
+
+
+def clip_to_plate(plate: Plate, x, y):
+    """Points (x, y) (m) moved onto the plate's rectangle where they lie off it (inside, untouched, gradient
+    included: a point on an edge keeps its own derivative)."""
+    L, W = plate.length, plate.width
+    x = jnp.where(x < 0, jnp.zeros_like(x), jnp.where(x > L, L, x))
+    y = jnp.where(y < -W / 2, -W / 2, jnp.where(y > W / 2, W / 2, y))
+    return x, y
 
 
 PRECISION_MESSAGE = (
