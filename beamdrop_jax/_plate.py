@@ -432,6 +432,47 @@ def _mechanism_message(plate: Plate, hold: float, r: float) -> str:
             "edges")
 
 
+def _gauges_off(xp, plate: Plate, points):
+    """Per gauge point (g, 2): not finite, off the plate, or inside a mount's disc (on its circle is on the plate)."""
+    if xp is jnp:
+        plate, points = jax.tree_util.tree_map(jax.lax.stop_gradient, (plate, points))
+    x, y = points[..., 0], points[..., 1]
+    on = (xp.isfinite(x) & xp.isfinite(y) & (x >= 0) & (x <= plate.length) & (xp.abs(y) <= plate.width / 2))
+    if plate.mounts is None:
+        return ~on
+    inside = xp.any(xp.hypot(x[..., None] - plate.mounts[:, 0], y[..., None] - plate.mounts[:, 1])
+                    < plate.mount_radius * (1 - 1e-9), axis=-1)
+    return ~on | inside
+
+
+def check_gauges(board, points) -> None:
+    """Eagerly, a `ValueError` naming the first strain gauge (of points (g, 2), m) that is not finite, off the plate
+    or inside a mount's disc (where a point support's strain is singular), and the valid region; no-op when traced
+    or for a beam (whose gauges are refused elsewhere)."""
+    if points is None or not isinstance(board, Plate) or not is_concrete(board, points):
+        return
+    plate, points = on_host(board), np.asarray(points)
+    off = _gauges_off(np, plate, points)
+    if not np.any(off):
+        return
+    k = int(np.argmax(off))
+    L, W = float(plate.length), float(plate.width)
+    why = ("is not finite" if not np.all(np.isfinite(points[k])) else
+           "is off the plate" if not (0 <= points[k, 0] <= L and abs(points[k, 1]) <= W / 2) else
+           f"is inside a mount's disc (mount_radius = {float(plate.mount_radius):g} m), where the point support's "
+           "strain is singular")
+    discs = "" if plate.mounts is None else (f", outside the discs of mount_radius = {float(plate.mount_radius):g} m"
+                                             f" around the mounts {_fmt_points(plate.mounts)} m")
+    raise ValueError(f"gauges[{k}] = ({points[k, 0]:g}, {points[k, 1]:g}) m {why} (Flag.GAUGE_OUTSIDE); valid: "
+                     f"0 <= x <= length = {L:g} m and |y| <= width/2 = {W / 2:g} m{discs}")
+
+
+def gauge_flags(plate: Plate, gauges):
+    """Traceable: `Flag.GAUGE_OUTSIDE` where a gauge point ((g, 2), m) is not finite, off the plate or inside a
+    mount's disc."""
+    return flag_if(jnp.any(_gauges_off(jnp, plate, gauges)), Flag.GAUGE_OUTSIDE)
+
+
 def clip_to_plate(plate: Plate, x, y):
     """Points (x, y) (m) moved onto the plate's rectangle where they lie off it (inside, untouched, gradient
     included: a point on an edge keeps its own derivative)."""
@@ -439,6 +480,13 @@ def clip_to_plate(plate: Plate, x, y):
     x = jnp.where(x < 0, jnp.zeros_like(x), jnp.where(x > L, L, x))
     y = jnp.where(y < -W / 2, -W / 2, jnp.where(y > W / 2, W / 2, y))
     return x, y
+
+
+def blank_readings(gauges, bad):
+    """Gauge readings (`Gauges`) NaN where the response is flagged (`bad`): never a silent number."""
+    names = ("exx", "eyy", "gxy", "strain", "peak_strain", "peak_time")
+    return eqx.tree_at(lambda g: [getattr(g, n) for n in names], gauges,
+                       [jnp.where(bad, jnp.nan, getattr(gauges, n)) for n in names])
 
 
 PRECISION_MESSAGE = (

@@ -27,7 +27,7 @@ from ._clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
 from ._kinematics import HousingImpact, housing_impact
 from ._motion import HalfSine, Impulse, PulseTrain, Record
 from ._peaks import FieldPeak, field_on_grid, find_peak, find_plate_peak, plate_starts, stop_gradient
-from ._plate import Plate, PlateModes, plate_modes, surface_strain, surface_stress
+from ._plate import Plate, PlateModes, blank_readings, check_gauges, gauge_flags, plate_modes, surface_strain, surface_stress
 from ._scene import Board, Scene, check_scene, require_single, scene_flags
 from ._compile import filter_jit
 
@@ -748,7 +748,7 @@ def _respond_plate(plate: Plate, motion, numerics: Numerics, flags, gauges=None)
     error = jnp.abs(stress.value - check.value) / jnp.maximum(stress.value, jnp.finfo(S.window.dtype).tiny)
     nonfinite = ~jnp.isfinite(stress.value) | ~jnp.isfinite(deflection.value)
     flags = combine(flags, plate.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
-                    flag_if(nonfinite, Flag.NONFINITE_RESULT))
+                    flag_if(nonfinite, Flag.NONFINITE_RESULT), 0 if gauges is None else gauge_flags(plate, gauges))
     bad = flags != 0
     nan = lambda v: jnp.where(bad, jnp.nan, v)  # noqa: E731
     peak = Peak(
@@ -760,7 +760,8 @@ def _respond_plate(plate: Plate, motion, numerics: Numerics, flags, gauges=None)
         impulse=None, housing=None, impacts=None, support_jumps=_first_jumps(motion), peak=peak,
         frequencies=modes.frequencies() / (2 * math.pi), n_modes=S.used, check_modes=S.check, error_estimate=error,
         converged=(error <= numerics.convergence_rtol) & ~bad, window=S.window, flags=flags,
-        gauges=None if gauges is None else _gauges(plate, S, modes, used_mask, gauges), is_plate=True,
+        gauges=None if gauges is None else blank_readings(_gauges(plate, S, modes, used_mask, gauges), bad),
+        is_plate=True,
     )
 
 
@@ -782,7 +783,8 @@ def board_response(board: Board | Plate, motion, numerics: Numerics | None = Non
         raise ValueError('a PulseTrain support motion needs Numerics(method="closed_form")')
     if isinstance(motion, Record) and numerics.method != "diffrax":
         raise ValueError('a Record support motion needs Numerics(method="diffrax") (it has no closed form)')
-    response = _board_response_jit(board, motion, numerics, _gauge_points(gauges))
+    check_gauges(board, points := _gauge_points(gauges))
+    response = _board_response_jit(board, motion, numerics, points)
     if is_concrete(board, motion, response.flags) and int(response.flags):
         board.__check_init__()
         _raise_if_window(board, motion, numerics, response.flags, "board_response", with_check=True)
@@ -852,7 +854,8 @@ def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Res
     """
     numerics = Numerics() if numerics is None else numerics
     require_single(scene, "simulate")
-    response = _simulate_jit(scene, numerics, _gauge_points(gauges))
+    check_gauges(scene.board, points := _gauge_points(gauges))
+    response = _simulate_jit(scene, numerics, points)
     if is_concrete(scene, response.flags) and int(response.flags):
         _raise_eagerly(scene, numerics, response.flags, response.impacts, "simulate")
     return response

@@ -468,6 +468,27 @@ def test_mount_discs_lie_on_the_plate_and_the_peak_search_stays_on_it():
     assert np.all(np.abs(np.asarray(found.y)) <= 0.0385)
 
 
+def test_gauges_off_the_plate_or_in_a_mount_disc_are_refused_by_index_and_flagged_under_jit():
+    scene = bd.load_scene("jesd22-board")
+    for gauges, match in [(((0.066, 0.0), (-0.066, 0.0)), r"gauges\[1\] = \(-0\.066, 0\) m is off the plate"),
+                          (((1.0, 1.0),), r"gauges\[0\] = \(1, 1\) m is off the plate"),
+                          (((math.nan, 0.0),), r"gauges\[0\] = \(nan, 0\) m is not finite"),
+                          (((0.007, -0.0325),), r"gauges\[0\] = \(0\.007, -0\.0325\) m is inside a mount's disc")]:
+        with pytest.raises(ValueError, match=match + r".*valid: 0 <= x <= length = 0\.132 m and \|y\| <= width/2 = "
+                                                      r"0\.0385 m, outside the discs of mount_radius = 0\.003 m"):
+            bd.simulate(scene, gauges=gauges)
+        with pytest.raises(ValueError, match=match):
+            bd.board_response(scene.board, bd.HalfSine(1.0, 1.0, 5e-4), gauges=gauges)
+    plate = bd.Plate(**_JESD, edges="FFFF", mounts=_CORNER_SCREWS[1:], basis=(6, 6))
+    run = jax.jit(lambda g: bd.board_response(plate, bd.HalfSine(1.0, 1.0, 5e-4), bd.Numerics(n_modes=4), gauges=g))
+    for gauges in ([(0.066, 0.0), (1.0, 1.0)], [(math.nan, 0.0), (0.066, 0.0)], [(0.127, -0.0325), (0.066, 0.0)]):
+        res = run(jnp.asarray(gauges))
+        assert int(res.flags) == bd.Flag.GAUGE_OUTSIDE
+        assert np.all(np.isnan(np.asarray(res.gauges.peak_strain))) and np.isnan(float(res.peak.strain))
+    good = run(jnp.asarray([(0.066, 0.0), (0.126, -0.0355)]))  # on a mount's circle is on the plate
+    assert int(good.flags) == 0 and np.all(np.isfinite(np.asarray(good.gauges.peak_strain)))
+
+
 def test_a_mount_off_the_plate_has_a_flag_of_its_own():
     # Under jit it was flagged BOARD_OUTSIDE_HOUSING, which names another problem (the board's ends in the housing).
     plate = bd.Plate(**_JESD, edges="FFFF", mounts=_CORNER_SCREWS[1:], basis=(6, 6))
