@@ -42,6 +42,7 @@ class Flag(enum.IntFlag):
     MECHANISM = 1048576  # a plate's supports leave a rigid motion free, or hold it only within a mount's radius
     MOUNTS_COINCIDE = 2097152  # two of a plate's mounts closer than `mount_radius`: the model cannot tell them apart
     GAUGE_OUTSIDE = 4194304  # a strain gauge off the plate, inside a mount's disc, or not finite
+    OUTSIDE_THEORY = 8388608  # a plate too thick for thin-plate theory, or deflecting beyond small rotations
 
     @classmethod
     def describe(cls, flags) -> list[str]:

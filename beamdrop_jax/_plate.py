@@ -43,6 +43,14 @@ values, and sets a `Flag` bit under `jit`, where the results are NaN):
 - Mount discs (`Flag.MOUNT_OUTSIDE_PLATE`): every mount lies on the plate, and its disc of `mount_radius` too,
   except where the mount sits on an edge itself (a boundary point support, as Leissa's corner-supported plates):
   each mount's distance to each edge is 0 or at least `mount_radius`. The peak search stays on the plate.
+- Thin-plate theory (`Flag.OUTSIDE_THEORY`). Kirchhoff's theory neglects transverse shear and rotary inertia, so it
+  holds for thickness small against the span: the plate is refused when its thickness exceeds a tenth of its
+  shorter side (`THIN_PLATE_RATIO`), the usual limit of thin-plate theory (e.g. Szilard, Theories and Applications
+  of Plate Analysis, 2004, ch. 1; at h/a = 0.1 the simply supported square plate's fundamental is already 3.5 %
+  below Kirchhoff's in Mindlin's theory and in exact 3-D elasticity, Srinivas, Rao & Rao 1970). Its kinematics
+  (and von Karman's) need small rotations: a response whose peak deflection exceeds a quarter of the shorter side
+  (`DEFLECTION_RATIO`; a half-wave's slope pi w / a reaches pi/4) is flagged too, and `plate_notes` says when the
+  deflection exceeds the thickness (linear theory then overestimates it: mid-plane stretching is not modelled).
 """
 
 import functools
@@ -251,12 +259,19 @@ class Plate(eqx.Module):
         """Traceable checks of this plate (int32 mask of `Flag`)."""
         from ._scene import _range_flags
 
-        flags = combine(_range_flags(self), flag_if(_single_precision(self), Flag.PRECISION))
+        flags = combine(_range_flags(self), flag_if(_single_precision(self), Flag.PRECISION),
+                        flag_if(_too_thick(jnp, self), Flag.OUTSIDE_THEORY))
         g = _support_geometry(jnp, self)
         return combine(flags, flag_if(jnp.any(g.off_plate | g.crossing, axis=-1), Flag.MOUNT_OUTSIDE_PLATE),
                        flag_if(~(g.hold >= self.mount_radius), Flag.MECHANISM),
                        flag_if(jnp.any(g.coincide, axis=-1), Flag.MOUNTS_COINCIDE))
 
+
+THIN_PLATE_RATIO = 0.1
+"""Largest thickness over the plate's shorter side for Kirchhoff (thin-plate) theory (see the module notes)."""
+
+DEFLECTION_RATIO = 0.25
+"""Largest peak deflection over the plate's shorter side for small-rotation kinematics (see the module notes)."""
 
 _EDGE_NAMES = ("x = 0", "y = -W/2", "x = L", "y = +W/2")
 
@@ -327,6 +342,10 @@ def _support_geometry(xp, plate) -> _Supports:
     return _Supports(off_plate, crossing, coincide, xp.broadcast_to(hold, batch))
 
 
+def _too_thick(xp, plate):
+    return ~(xp.asarray(plate.thickness) <= THIN_PLATE_RATIO * xp.minimum(plate.length, plate.width))
+
+
 def _static_mechanism(plate: Plate) -> str | None:
     """The message for a plate whose edges, without mounts, leave it a rigid motion (known from the edges alone,
     so raised under tracing too), or None."""
@@ -353,7 +372,7 @@ def _plate_problem(plate: Plate) -> str | None:
                                 () if plate.mounts is None else np.shape(plate.mounts)[:-2])
     if batch:
         g = _support_geometry(np, plate)
-        bad = np.zeros(batch, bool)
+        bad = np.broadcast_to(_too_thick(np, plate), batch)
         if plate.mounts is not None:
             bad = bad | np.broadcast_to(np.any(g.off_plate | g.crossing, axis=-1) | np.any(g.coincide, axis=-1)
                                         | ~(g.hold >= plate.mount_radius), batch)
@@ -367,6 +386,11 @@ def _plate_problem(plate: Plate) -> str | None:
             single = eqx.tree_at(lambda p: p.mounts, single, pick(plate.mounts, 2))
         return _plate_problem(single)
     L, W, r, h = (float(v) for v in (plate.length, plate.width, plate.mount_radius, plate.thickness))
+    if _too_thick(np, plate):
+        return (f"Plate.thickness = {h:g} m is {h / min(L, W):.3g} of the plate's shorter side ({min(L, W):g} m): "
+                "outside thin-plate (Kirchhoff) theory, which neglects transverse shear and rotary inertia "
+                f"(Flag.OUTSIDE_THEORY); valid: thickness <= {THIN_PLATE_RATIO:g} x min(length, width) = "
+                f"{THIN_PLATE_RATIO * min(L, W):g} m")
     if plate.mounts is None:
         return None
     g = _support_geometry(np, plate)
@@ -467,10 +491,15 @@ def check_gauges(board, points) -> None:
                      f"0 <= x <= length = {L:g} m and |y| <= width/2 = {W / 2:g} m{discs}")
 
 
-def gauge_flags(plate: Plate, gauges):
-    """Traceable: `Flag.GAUGE_OUTSIDE` where a gauge point ((g, 2), m) is not finite, off the plate or inside a
-    mount's disc."""
-    return flag_if(jnp.any(_gauges_off(jnp, plate, gauges)), Flag.GAUGE_OUTSIDE)
+def response_flags(plate: Plate, deflection, gauges=None):
+    """Traceable checks of a plate's response: `Flag.OUTSIDE_THEORY` where the peak deflection (m) exceeds
+    `DEFLECTION_RATIO` of the shorter side (beyond small rotations), `Flag.GAUGE_OUTSIDE` where a gauge point
+    ((g, 2), m, or None) is not finite, off the plate or inside a mount's disc."""
+    limit = DEFLECTION_RATIO * jnp.minimum(plate.length, plate.width)
+    flags = flag_if(jax.lax.stop_gradient(deflection) > limit, Flag.OUTSIDE_THEORY)
+    if gauges is not None:
+        flags = combine(flags, flag_if(jnp.any(_gauges_off(jnp, plate, gauges)), Flag.GAUGE_OUTSIDE))
+    return flags
 
 
 def clip_to_plate(plate: Plate, x, y):
@@ -482,11 +511,51 @@ def clip_to_plate(plate: Plate, x, y):
     return x, y
 
 
+def plate_grid_deflection(modes: "PlateModes", Q, mask):
+    """The largest |deflection| (m) on the plate's search grid (2 points per basis function each way, edges
+    included), from the modal factors Q = (scale (n,), R (nt, n)) and the mode mask: a cheap stand-in for the
+    deflection peak where only `response_flags` needs it (no gradient)."""
+    plate = modes.plate
+    xi, eta = (jnp.linspace(lo, lo + 1.0, 2 * b + 1) for lo, b in zip((0.0, -0.5), plate.basis))
+    XI, ETA = (v.ravel() for v in jnp.meshgrid(xi, eta, indexing="ij"))
+    phi = modes.shapes(XI * plate.length, ETA * plate.width, derivatives=False)
+    scale, R = Q
+    u = (phi * (mask * scale)) @ R.T
+    return jax.lax.stop_gradient(jnp.max(jnp.abs(u)))
+
+
 def blank_readings(gauges, bad):
     """Gauge readings (`Gauges`) NaN where the response is flagged (`bad`): never a silent number."""
     names = ("exx", "eyy", "gxy", "strain", "peak_strain", "peak_time")
     return eqx.tree_at(lambda g: [getattr(g, n) for n in names], gauges,
                        [jnp.where(bad, jnp.nan, getattr(gauges, n)) for n in names])
+
+
+def raise_if_outside_theory(board, flags, what: str) -> None:
+    """Eagerly, a plate response's `Flag.OUTSIDE_THEORY` (its deflection; a thick plate is refused when built) as a
+    `ValueError` naming the fields and the valid range."""
+    if not isinstance(board, Plate) or not int(flags) & Flag.OUTSIDE_THEORY:
+        return
+    plate = on_host(board)
+    short = float(np.min(np.minimum(plate.length, plate.width)))
+    raise ValueError(
+        f"{what}: the plate's peak deflection exceeds {DEFLECTION_RATIO:g} of its shorter side "
+        f"({DEFLECTION_RATIO * short:.4g} m; Flag.OUTSIDE_THEORY): rotations too large for plate theory, whose "
+        "kinematics assume small slopes (a half-wave's slope pi w / a reaches pi/4 there); the board is too flexible "
+        f"for this drop (Plate.thickness = {float(np.max(plate.thickness)):g} m, Plate.youngs_modulus = "
+        f"{float(np.max(plate.youngs_modulus)):g} Pa); valid: peak deflection <= {DEFLECTION_RATIO:g} x "
+        "min(length, width): a thicker or stiffer plate, more support, or a gentler drop")
+
+
+def plate_notes(plate: Plate, response) -> list[str]:
+    """What a reader of a plate's numbers should know beyond a beam's notes (`response_notes`)."""
+    notes = []
+    h, short = float(plate.thickness), float(min(plate.length, plate.width))
+    if h > short / 20:
+        notes.append(f"the plate's thickness is {h / short:.2g} of its shorter side: thin-plate (Kirchhoff) theory "
+                     "neglects transverse shear and rotary inertia, which lower the frequencies (by about 1 % at "
+                     f"1/20, 3.5 % at 1/10, Mindlin); beyond {THIN_PLATE_RATIO:g} the plate is refused")
+    return notes
 
 
 PRECISION_MESSAGE = (

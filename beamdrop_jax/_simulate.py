@@ -27,7 +27,8 @@ from ._clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
 from ._kinematics import HousingImpact, housing_impact
 from ._motion import HalfSine, Impulse, PulseTrain, Record
 from ._peaks import FieldPeak, field_on_grid, find_peak, find_plate_peak, plate_starts, stop_gradient
-from ._plate import Plate, PlateModes, blank_readings, check_gauges, gauge_flags, plate_modes, surface_strain, surface_stress
+from ._plate import (Plate, PlateModes, blank_readings, check_gauges, plate_grid_deflection, plate_modes, plate_notes,
+                     raise_if_outside_theory, response_flags, surface_strain, surface_stress)
 from ._scene import Board, Scene, check_scene, require_single, scene_flags
 from ._compile import filter_jit
 
@@ -748,7 +749,7 @@ def _respond_plate(plate: Plate, motion, numerics: Numerics, flags, gauges=None)
     error = jnp.abs(stress.value - check.value) / jnp.maximum(stress.value, jnp.finfo(S.window.dtype).tiny)
     nonfinite = ~jnp.isfinite(stress.value) | ~jnp.isfinite(deflection.value)
     flags = combine(flags, plate.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
-                    flag_if(nonfinite, Flag.NONFINITE_RESULT), 0 if gauges is None else gauge_flags(plate, gauges))
+                    flag_if(nonfinite, Flag.NONFINITE_RESULT), response_flags(plate, deflection.value, gauges))
     bad = flags != 0
     nan = lambda v: jnp.where(bad, jnp.nan, v)  # noqa: E731
     peak = Peak(
@@ -787,6 +788,7 @@ def board_response(board: Board | Plate, motion, numerics: Numerics | None = Non
     response = _board_response_jit(board, motion, numerics, points)
     if is_concrete(board, motion, response.flags) and int(response.flags):
         board.__check_init__()
+        raise_if_outside_theory(board, response.flags, "board_response")
         _raise_if_window(board, motion, numerics, response.flags, "board_response", with_check=True)
         raise_if_flagged(response.flags & ~Flag.SOLVER_FAILED, "board_response")
     return response
@@ -822,6 +824,7 @@ def _raise_eagerly(scene: Scene, numerics: Numerics, flags, impacts: Impacts | N
     """The compiled run found a problem: the eager checks name the field and its valid range."""
     check_scene(scene)
     housing_impact(scene, law=numerics.law)
+    raise_if_outside_theory(scene.board, flags, what)
     _raise_if_window(scene.board, drop_motion(scene, numerics)[0], numerics, flags, what, with_check)
     if impacts is not None and int(impacts.ending) == Ending.SEARCH_GAVE_UP:
         n = int(impacts.count)
@@ -880,8 +883,10 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     mask = (S.k <= S.used).astype(float_dtype())
     if isinstance(board, Plate):
         values = _plate_searches(S, board, numerics, S.modes, quantities, mask).value
+        deflection = (values[quantities.index("deflection")] if "deflection" in quantities
+                      else plate_grid_deflection(S.modes, S.Q, mask))
         flags = combine(scene_flags(scene), impact_flags, board.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
-                        flag_if(~jnp.all(jnp.isfinite(values)), Flag.NONFINITE_RESULT))
+                        flag_if(~jnp.all(jnp.isfinite(values)), Flag.NONFINITE_RESULT), response_flags(board, deflection))
         return jnp.where(flags != 0, jnp.nan, values), flags
     kinds = sorted({"deflection" if q == "deflection" else "curvature" for q in quantities})
     rows = jnp.stack([(jnp.ones_like(S.curvature) if k == "deflection" else S.curvature) * mask for k in kinds])
@@ -1051,7 +1056,7 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
                      "linear (small-deflection) theory overestimates it; mid-plane stretching matters "
                      + ("(not modelled for plates yet)" if isinstance(board, Plate)
                         else "(Numerics(method=\"diffrax\", stretching=True))"))
-    return notes
+    return notes + (plate_notes(board, response) if isinstance(board, Plate) else [])
 
 
 class StrainMap(eqx.Module):

@@ -489,6 +489,28 @@ def test_gauges_off_the_plate_or_in_a_mount_disc_are_refused_by_index_and_flagge
     assert int(good.flags) == 0 and np.all(np.isfinite(np.asarray(good.gauges.peak_strain)))
 
 
+def test_plates_outside_thin_plate_theory_are_refused_or_flagged():
+    with pytest.raises(ValueError, match=r"Plate\.thickness = 0\.066 m is 0\.857 of the plate's shorter side.*"
+                                         r"valid: thickness <= 0\.1 x min\(length, width\) = 0\.0077 m"):
+        bd.Plate(**{**_JESD, "thickness": 0.066}, edges="FFFF", mounts=_CORNER_SCREWS)
+    plate = bd.Plate(**_JESD, edges="FFFF", mounts=_CORNER_SCREWS, basis=(6, 6))
+    assert _flags_of(plate, thickness=0.066) == bd.Flag.OUTSIDE_THEORY
+    assert _flags_of(plate, thickness=7e-3) == bd.Flag.OK
+    # A 1 um board deflects 9.3 m in the JESD22 drop: beyond small rotations, refused eagerly and flagged under jit.
+    scene = bd.load_scene("jesd22-board")
+    thin = scene.replace(**{"board.thickness": 1e-6})
+    with pytest.raises(ValueError, match=r"simulate: the plate's peak deflection exceeds 0\.25 of its shorter side "
+                                         r"\(0\.01925 m; Flag\.OUTSIDE_THEORY\).*Plate\.thickness = 1e-06 m"):
+        bd.simulate(thin)
+    with pytest.raises(ValueError, match=r"peak_stress: the plate's peak deflection exceeds"):
+        bd.peak_stress(thin)
+    flags = jax.jit(lambda h: bd.simulate(scene.replace(check_ranges=False, **{"board.thickness": h})).flags)
+    assert int(flags(jnp.asarray(1e-6))) == bd.Flag.OUTSIDE_THEORY and int(flags(jnp.asarray(1e-3))) == 0
+    # Thick enough for shear to matter, thin enough to compute: a note says so.
+    thick = scene.replace(**{"board.thickness": 5e-3})
+    assert any("thin-plate (Kirchhoff) theory" in note for note in bd.response_notes(thick, bd.simulate(thick)))
+
+
 def test_a_mount_off_the_plate_has_a_flag_of_its_own():
     # Under jit it was flagged BOARD_OUTSIDE_HOUSING, which names another problem (the board's ends in the housing).
     plate = bd.Plate(**_JESD, edges="FFFF", mounts=_CORNER_SCREWS[1:], basis=(6, 6))
