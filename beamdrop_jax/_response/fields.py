@@ -100,7 +100,7 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
                      "linear (small-deflection) theory overestimates it; mid-plane stretching matters "
                      + ("(not modelled for plates yet)" if board.SURFACE
                         else "(Numerics(method=\"diffrax\", stretching=True))"))
-    return notes
+    return notes + board.notes(response)
 
 
 def plate_strain_map(scene: Scene, response: Response, numerics: Numerics | None = None, t=None, nx: int = 133,

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 
 from .._board.base import Gauges, Peak
 from .._board.plate import surface_strain, surface_stress
+from .._board.plate_checks import blank_readings, response_flags
 from .._board.search import field_on_grid, find_plate_peak, plate_starts
 from .._common.checks import Flag, combine, flag_if, float_dtype
 from .numerics import Numerics
@@ -133,7 +134,7 @@ def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None) -> Res
     error = jnp.maximum(jnp.maximum(modes_error, gauges_error), basis_error)
     nonfinite = ~jnp.isfinite(stress.value) | ~jnp.isfinite(deflection.value)
     flags = combine(flags, plate.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
-                    flag_if(nonfinite, Flag.NONFINITE_RESULT))
+                    flag_if(nonfinite, Flag.NONFINITE_RESULT), response_flags(plate, deflection.value, gauges))
     bad = flags != 0
     nan = lambda v: jnp.where(bad, jnp.nan, v)  # noqa: E731
     peak = Peak(
@@ -145,7 +146,7 @@ def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None) -> Res
         impulse=None, housing=None, impacts=None, support_jumps=motion.first_jumps(), peak=peak,
         frequencies=modes.frequencies() / (2 * math.pi), n_modes=S.used, check_modes=S.check, error_estimate=error,
         converged=(error <= numerics.convergence_rtol) & ~bad, window=S.window, flags=flags,
-        gauges=read, is_plate=True, convergence=convergence,
+        gauges=None if read is None else blank_readings(read, bad), is_plate=True, convergence=convergence,
     )
 
 
