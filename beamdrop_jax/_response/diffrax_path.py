@@ -71,7 +71,8 @@ def solve_modes(
     if stretching:  # the membrane force of a pinned beam's immovable ends (section 3); no other board has one yet
         ends = getattr(board, "ends", None)
         if ends != "pinned":
-            raise ValueError(f"Numerics.stretching = True models pinned beams only (this board: {board.describe()})")
+            where = f'Board.ends = "{ends}"' if ends else f"a {type(board).__name__}"
+            raise ValueError(f"Numerics.stretching = True models pinned ends only ({where})")
         kappa = wavenumbers(board, n_modes)
         membrane = board.youngs_modulus * board.width * board.thickness / 4.0
     part = support_participation(board, n_modes) * force_mask[:, None]
