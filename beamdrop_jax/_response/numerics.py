@@ -24,8 +24,13 @@ class Numerics(eqx.Module):
       `min_modes`, at most `max_modes`) and checks it against twice as many, or `max_modes` when twice as many
       exceed it (half as many only when the count is at the cap);
       an int means exactly modes 1..n_modes, checked against half as many. `max_modes` and `pulse_modes` left
-      `None` take the board's own (`AbstractBoard.NUMERICS`: a beam 16 and 2, a plate on point mounts 48 and 3,
-      since its strain near a screw needs modes well past the pulse's band).
+      `None` take the board's own (`AbstractBoard.NUMERICS`; 16 and 2 for the beam and the plate). A plate on
+      point mounts needs modes well past the pulse's band near its screws: on the JESD22 board 48 modes and
+      `pulse_modes=3` (with `frequency_growth=1`, which keeps its time grid small).
+    - `frequency_growth`: how the top computed mode's frequency grows with the mode count M, which sizes the time
+      grid: 2 (the default) for M^2 (a beam; a bound for any board), 1 for about 1.5 M (a plate on mounts, by
+      Weyl's law in two dimensions; the grid then allows 2 M + 8 periods, and a plate whose frequencies outgrow
+      it is flagged, `Flag.WINDOW_RANGE`).
     - `window`: time window (s); `None` is the pulse duration plus one fundamental period. With several impacts
       it is the window searched after each impact (the free vibration between impacts repeats with the
       fundamental period when the axial force is 0, so one period after each pulse holds the peak).
@@ -60,8 +65,6 @@ class Numerics(eqx.Module):
     law: str = eqx.field(static=True, default="poisson")
     max_impacts: int = eqx.field(static=True, default=1)
     rest_speed: float = eqx.field(static=True, default=0.02)
-    # How the top computed mode's frequency grows with the mode count M, as the time grid must follow it: M^2 for
-    # a beam, M for a plate (Weyl's law in two dimensions). Set by the board (`for_board`).
     frequency_growth: int | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
