@@ -408,3 +408,187 @@ def test_diffrax_path_on_a_plate_agrees_with_the_closed_form():
                                rtol=1e-6)
     with pytest.raises(ValueError, match="stretching = True models pinned beams only"):
         bd.board_response(plate, motion, bd.Numerics(n_modes=5, method="diffrax", stretching=True))
+
+
+# Checks: each answer below came back as a number with flags == 0 (and converged=True for the mechanisms).
+_JESD = dict(length=0.132, width=0.077, thickness=1e-3, youngs_modulus=24e9, density=1850.0, poisson_ratio=0.2,
+             mount_radius=3e-3)
+_CORNER_SCREWS = ((0.006, -0.0325), (0.126, -0.0325), (0.006, 0.0325), (0.126, 0.0325))
+
+
+def _flags_of(plate, **fields):
+    """The plate's traced `flags()` with `fields` replaced under jit (past the eager checks)."""
+    names = list(fields)
+    return bd.Flag(int(jax.jit(lambda values: eqx.tree_at(lambda p: [getattr(p, n) for n in names], plate,
+                                                           values).flags())([jnp.asarray(v, float)
+                                                                            for v in fields.values()])))
+
+
+def test_mechanisms_are_refused_by_name_and_flagged_under_jit():
+    for edges, what in (("SFFF", "edge x = 0"), ("FSFF", "edge y = -W/2")):
+        with pytest.raises(ValueError, match=rf"Plate\.edges = '{edges}' without mounts is a mechanism.*{what}"):
+            bd.Plate(**_JESD, edges=edges)
+    line = "mounts 0, 1, 2 all lie within"
+    for mounts, match in [
+        (((0.006, 0.0), (0.066, 0.0), (0.126, 0.0)), rf"a mechanism.*{line} 0 m of one line.*collinear"),
+        (((0.006, 0.0), (0.04, 0.0), (0.09, 0.0), (0.126, 0.0)), r"a mechanism.*mounts 0, 1, 2, 3 all lie within 0 m"),
+        (((0.006, 0.0), (0.126, 0.0), (0.066, 1e-6)), rf"near-mechanism.*{line} 5e-07 m.*nearly collinear"),
+        (((0.006, 0.0), (0.126, 0.0), (0.066, 1e-5)), rf"near-mechanism.*{line} 5e-06 m"),
+        (((0.006, 0.0), (0.126, 0.0), (0.066, 1e-3)), rf"near-mechanism.*{line} 0.0005 m"),
+        (((0.006, -0.0325), (0.006, -0.0325 + 1e-9), (0.126, 0.0325)), r"mounts 0 and 1 \(nearly\) coincident"),
+        (((0.006, -0.0325), (0.006, -0.0325), (0.126, 0.0325)), r"mounts 0 and 1 \(nearly\) coincident"),
+        (((0.006, -0.0325), (0.006, -0.0325)) + _CORNER_SCREWS[1:], r" 0 and 1 are 0 m apart, closer than mount_radius"),
+        (((0.066, 0.0),), r"at least 3 mounts not on one line"),
+    ]:
+        with pytest.raises(ValueError, match=r"Plate\.mounts.*" + match):
+            bd.Plate(**_JESD, edges="FFFF", mounts=mounts)
+    # Mounts on the one supported edge (their discs may cross it there) do not hold the turn about it.
+    with pytest.raises(ValueError, match=r"edges = 'SFFF' leave a mechanism.*turns about its one supported edge "
+                                         r"x = 0.*every mount \(0 to 1\) lies within 0 m of that edge"):
+        bd.Plate(**_JESD, edges="SFFF", mounts=((0.0, 0.01), (0.0, -0.02)))
+    # Held: the JESD22 board, a third screw 1 cm off the line of two, a supported edge with a far mount, a cantilever.
+    for edges, mounts in (("FFFF", _CORNER_SCREWS), ("FFFF", ((0.006, 0.0), (0.126, 0.0), (0.066, 1e-2))),
+                          ("SFFF", ((0.1, 0.0),)), ("CFFF", None)):
+        assert int(bd.Plate(**_JESD, edges=edges, mounts=mounts).flags()) == 0
+    # DESIGN.md: mounts without edges mean "FFFF" (held by the mounts only); no mounts, "SFSF".
+    assert bd.Plate(**_JESD, mounts=_CORNER_SCREWS).edges == "FFFF" and bd.Plate(**_JESD).edges == "SFSF"
+    # Under jit: a bit of its own, and the result is NaN, not 0 with converged=True.
+    plate = bd.Plate(**_JESD, edges="FFFF", mounts=_CORNER_SCREWS[:3], basis=(6, 6))
+    for mounts in ([(0.006, 0.0), (0.066, 0.0), (0.126, 0.0)], [(0.006, 0.0), (0.126, 0.0), (0.066, 1e-3)]):
+        assert _flags_of(plate, mounts=mounts) == bd.Flag.MECHANISM
+    coincident = [(0.006, -0.0325), (0.006, -0.0325), (0.126, 0.0325)]
+    assert _flags_of(plate, mounts=coincident) == bd.Flag.MECHANISM | bd.Flag.MOUNTS_COINCIDE
+    run = jax.jit(lambda m: bd.board_response(eqx.tree_at(lambda p: p.mounts, plate, m), bd.HalfSine(1.0, 1.0, 5e-4),
+                                              bd.Numerics(n_modes=4)))
+    res = run(jnp.asarray([(0.006, 0.0), (0.066, 0.0), (0.126, 0.0)]))
+    assert int(res.flags) & bd.Flag.MECHANISM and np.isnan(float(res.peak.strain)) and not bool(res.converged)
+    assert int(run(jnp.asarray(_CORNER_SCREWS[:3])).flags) == 0
+
+
+def test_mount_discs_lie_on_the_plate_and_the_peak_search_stays_on_it():
+    from beamdrop_jax._response.setup import _setup
+    from beamdrop_jax._response.surface import _plate_searches
+
+    near_edge = ((0.0005, 0.0), (0.126, -0.0325), (0.126, 0.0325))
+    with pytest.raises(ValueError, match=r"Plate\.mounts\[0\] = \(0\.0005, 0\) m: its disc of mount_radius = 0\.003 m "
+                                         r"crosses the edge x = 0.*valid: .*0\.003 <= x <= 0\.129 m and \|y\| <= 0\.0355"):
+        bd.Plate(**_JESD, edges="FFFF", mounts=near_edge)
+    with pytest.raises(ValueError, match=r"mount_radius = 0\.07 m crosses .*Plate\.mount_radius <= min\(length, width\) / 2"):
+        bd.Plate(**{**_JESD, "mount_radius": 0.07}, edges="FFFF", mounts=_CORNER_SCREWS)
+    with pytest.raises(ValueError, match=r"board\.mount_radius|mount_radius = 0\.07"):
+        bd.load_scene("jesd22-board").replace(**{"board.mount_radius": 0.07})
+    # A mount on the edge itself is a boundary point support (Leissa's corner-supported plate): allowed.
+    assert int(bd.Plate(**_JESD, edges="FFFF", mounts=((0.0, -0.0385), (0.132, -0.0385), (0.066, 0.0385))).flags()) == 0
+    plate = bd.Plate(**_JESD, edges="FFFF", mounts=_CORNER_SCREWS[1:], basis=(6, 6))
+    assert _flags_of(plate, mounts=near_edge) == bd.Flag.MOUNT_OUTSIDE_PLATE
+    assert _flags_of(plate, mount_radius=0.07) & bd.Flag.MOUNT_OUTSIDE_PLATE
+    # The search itself (past the checks) stays on the plate: the disc crossing x = 0 used to put the peak at
+    # x = -2.5 mm, where the polynomials are extrapolated.
+    bad = eqx.tree_at(lambda p: p.mounts, bd.Plate(**_JESD, edges="FFFF", mounts=_CORNER_SCREWS[1:], basis=(8, 8)),
+                      jnp.asarray(near_edge))
+    numerics = bd.Numerics(n_modes=8)
+    S = _setup(bad, bd.HalfSine(1.0, 1.0, 5e-4), numerics, with_check=False)
+    found = _plate_searches(S, bad, numerics, S.modes, ("strain",), jnp.ones(8))
+    assert np.all(np.asarray(found.x) >= 0) and np.all(np.asarray(found.x) <= 0.132)
+    assert np.all(np.abs(np.asarray(found.y)) <= 0.0385)
+
+
+def test_gauges_off_the_plate_or_in_a_mount_disc_are_refused_by_index_and_flagged_under_jit():
+    scene = bd.load_scene("jesd22-board")
+    for gauges, match in [(((0.066, 0.0), (-0.066, 0.0)), r"gauges\[1\] = \(-0\.066, 0\) m is off the plate"),
+                          (((1.0, 1.0),), r"gauges\[0\] = \(1, 1\) m is off the plate"),
+                          (((math.nan, 0.0),), r"gauges\[0\] = \(nan, 0\) m is not finite"),
+                          (((0.007, -0.0325),), r"gauges\[0\] = \(0\.007, -0\.0325\) m is inside a mount's disc")]:
+        with pytest.raises(ValueError, match=match + r".*valid: 0 <= x <= length = 0\.132 m and \|y\| <= width/2 = "
+                                                      r"0\.0385 m, outside the discs of mount_radius = 0\.003 m"):
+            bd.simulate(scene, gauges=gauges)
+        with pytest.raises(ValueError, match=match):
+            bd.board_response(scene.board, bd.HalfSine(1.0, 1.0, 5e-4), gauges=gauges)
+    plate = bd.Plate(**_JESD, edges="FFFF", mounts=_CORNER_SCREWS[1:], basis=(6, 6))
+    run = jax.jit(lambda g: bd.board_response(plate, bd.HalfSine(1.0, 1.0, 5e-4), bd.Numerics(n_modes=4), gauges=g))
+    for gauges in ([(0.066, 0.0), (1.0, 1.0)], [(math.nan, 0.0), (0.066, 0.0)], [(0.127, -0.0325), (0.066, 0.0)]):
+        res = run(jnp.asarray(gauges))
+        assert int(res.flags) == bd.Flag.GAUGE_OUTSIDE
+        assert np.all(np.isnan(np.asarray(res.gauges.peak_strain))) and np.isnan(float(res.peak.strain))
+    good = run(jnp.asarray([(0.066, 0.0), (0.126, -0.0355)]))  # on a mount's circle is on the plate
+    assert int(good.flags) == 0 and np.all(np.isfinite(np.asarray(good.gauges.peak_strain)))
+
+
+def test_plates_outside_thin_plate_theory_are_refused_or_flagged():
+    with pytest.raises(ValueError, match=r"Plate\.thickness = 0\.066 m is 0\.857 of the plate's shorter side.*"
+                                         r"valid: thickness <= 0\.1 x min\(length, width\) = 0\.0077 m"):
+        bd.Plate(**{**_JESD, "thickness": 0.066}, edges="FFFF", mounts=_CORNER_SCREWS)
+    plate = bd.Plate(**_JESD, edges="FFFF", mounts=_CORNER_SCREWS, basis=(6, 6))
+    assert _flags_of(plate, thickness=0.066) == bd.Flag.OUTSIDE_THEORY
+    assert _flags_of(plate, thickness=7e-3) == bd.Flag.OK
+    # A 1 um board deflects 9.3 m in the JESD22 drop: beyond small rotations, refused eagerly and flagged under jit.
+    scene = bd.load_scene("jesd22-board")
+    thin = scene.replace(**{"board.thickness": 1e-6})
+    with pytest.raises(ValueError, match=r"simulate: the plate's peak deflection exceeds 0\.25 of its shorter side "
+                                         r"\(0\.01925 m; Flag\.OUTSIDE_THEORY\).*Plate\.thickness = 1e-06 m"):
+        bd.simulate(thin)
+    with pytest.raises(ValueError, match=r"peak_stress: the plate's peak deflection exceeds"):
+        bd.peak_stress(thin)
+    flags = jax.jit(lambda h: bd.simulate(scene.replace(check_ranges=False, **{"board.thickness": h})).flags)
+    assert int(flags(jnp.asarray(1e-6))) == bd.Flag.OUTSIDE_THEORY and int(flags(jnp.asarray(1e-3))) == 0
+    # Thick enough for shear to matter, thin enough to compute: a note says so.
+    thick = scene.replace(**{"board.thickness": 5e-3})
+    assert any("thin-plate (Kirchhoff) theory" in note for note in bd.response_notes(thick, bd.simulate(thick)))
+
+
+def test_a_mount_off_the_plate_has_a_flag_of_its_own():
+    # Under jit it was flagged BOARD_OUTSIDE_HOUSING, which names another problem (the board's ends in the housing).
+    plate = bd.Plate(**_JESD, edges="FFFF", mounts=_CORNER_SCREWS[1:], basis=(6, 6))
+    for mounts in ([(0.2, 0.0), (0.126, -0.0325), (0.126, 0.0325)], [(0.066, -0.05), (0.126, -0.0325), (0.126, 0.0325)],
+                   [(math.nan, 0.0), (0.126, -0.0325), (0.126, 0.0325)]):
+        off = _flags_of(plate, mounts=mounts)
+        assert off & bd.Flag.MOUNT_OUTSIDE_PLATE and not off & bd.Flag.BOARD_OUTSIDE_HOUSING, off
+    with pytest.raises(ValueError, match=r"Plate\.mounts = .* valid: 0 <= x <= length = 0\.132 m .*mount 0 is off the "
+                                         r"plate; Flag\.MOUNT_OUTSIDE_PLATE"):
+        bd.Plate(**_JESD, edges="FFFF", mounts=((0.2, 0.0), (0.126, -0.0325), (0.126, 0.0325)))
+
+
+def test_converged_means_the_gauges_agree_with_a_converged_run():
+    """`converged` covers what the user reads: the peak and every gauge, in the modes and in the Ritz basis. On the
+    JESD22 board the defaults say they are not converged and name the fix; with the modes and basis the board
+    needs, the response says converged and agrees with a far richer run (basis 28 x 28, 64 modes) within the
+    tolerance at a gauge between two screws; a basis too coarse for that says so and names the basis."""
+    scene = bd.load_scene("jesd22-board")
+    plate = scene.board
+    motion = bd.HalfSine.from_peak(*bd.JESD22_B111_CONDITION_B)
+    gauges = ((0.066, 0.0), (0.03, 0.02))
+    default = bd.board_response(plate, motion, gauges=gauges)
+    assert not bool(default.converged) and float(default.error_estimate) > 1e-3
+    assert any("not converged" in n and ("--max-modes" in n or "Plate.basis" in n)
+               for n in bd.response_notes(scene, default))
+    enough = bd.Numerics(max_modes=48, pulse_modes=3.0, frequency_growth=1)
+    fine = bd.board_response(dataclasses.replace(plate, basis=(20, 20)), motion, enough, gauges=gauges)
+    assert bool(fine.converged) and float(fine.error_estimate) <= 1e-3
+    c = fine.convergence
+    assert max(float(c.modes), float(c.gauges), float(c.basis)) == float(fine.error_estimate)
+    rich = bd.board_response(dataclasses.replace(plate, basis=(28, 28)), motion,
+                             bd.Numerics(n_modes=64, frequency_growth=1), gauges=gauges)
+    np.testing.assert_allclose(np.asarray(fine.gauges.peak_strain), np.asarray(rich.gauges.peak_strain), rtol=2e-3)
+    np.testing.assert_allclose(float(fine.peak.strain), float(rich.peak.strain), rtol=2e-3)
+    coarse = bd.board_response(plate, motion, enough, gauges=gauges)  # the 12 x 12 default basis
+    assert not bool(coarse.converged) and coarse.convergence.worst()[0] == "basis"
+    notes = bd.response_notes(scene, coarse)
+    assert any("not converged: a Ritz basis" in n and "raise Plate.basis" in n for n in notes), notes
+
+
+def test_default_gradients_of_a_screwed_board_match_central_differences():
+    """At the defaults the refined peak is the maximiser, so the envelope gradient is the derivative of the value
+    returned (d peak stress / d mount position, the JESD22 board with its screws moved off symmetry: at a
+    symmetric layout mirror peaks tie and the peak has a kink, not a gradient). The step is large enough that the
+    search's last digits (1e-9 of the peak) do not enter the difference."""
+    base = bd.load_scene("jesd22-board").replace(**{"drop.orientation": 0.3})
+    mounts = jnp.asarray(np.asarray(base.board.mounts) + np.random.default_rng(1).uniform(-2e-3, 2e-3, (4, 2)))
+
+    def peak(m):
+        return bd.peak_stress(eqx.tree_at(lambda s: s.board.mounts, base, m))
+
+    grad = np.asarray(jax.grad(peak)(mounts))
+    step = 3e-5
+    for i, j in [(0, 0), (2, 1)]:
+        fd = (float(peak(mounts.at[i, j].add(step))) - float(peak(mounts.at[i, j].add(-step)))) / (2 * step)
+        np.testing.assert_allclose(grad[i, j], fd, rtol=5e-3)

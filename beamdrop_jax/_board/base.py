@@ -54,6 +54,7 @@ class AbstractBoard(AbstractModal):
 
     SECTION: ClassVar[str]
     SURFACE: ClassVar[bool]
+    NUMERICS: ClassVar[dict] = {}  # the board's own `Numerics` where the user leaves a field `None`
     TABLE_DURATIONS: ClassVar[bool]  # whether its superposition table can span contact durations
 
     @abc.abstractmethod
@@ -64,6 +65,16 @@ class AbstractBoard(AbstractModal):
     @abc.abstractmethod
     def modes(self, n_modes: int) -> AbstractModal:
         """The board's lowest `n_modes` modes, solved once per drop and shared by everything after."""
+
+    def check_gauges(self, points) -> None:
+        """Eagerly, a `ValueError` naming a gauge point ((g, 2), m) the board cannot read (none by default)."""
+
+    def raise_if_outside_theory(self, flags, what: str) -> None:
+        """Eagerly, a `ValueError` for a response flagged outside the board model's theory (none by default)."""
+
+    def notes(self, response) -> list[str]:
+        """What a reader of this board's numbers should know beyond `response_notes`'s general ones."""
+        return []
 
     def file_extras(self) -> dict:
         """Scene-file keys of the board beyond its float fields and choices (plain Python values)."""

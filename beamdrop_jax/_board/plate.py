@@ -21,8 +21,39 @@ as scalars, so `jax.grad` reaches every float field.
 Surface strains on the face z = h/2 from the curvatures k_xx = u_xx, k_yy = u_yy, k_xy = u_xy: with
 c = (k_xx + k_yy) / 2 and r = sqrt(((k_xx - k_yy) / 2)^2 + k_xy^2) the principal strains are -(h/2) (c +- r), so the
 largest magnitude is (h/2) (|c| + r); the largest principal plane stress is E (h/2) (|c| / (1 - nu) + r / (1 + nu)).
+
+Where the model stops holding (each check raises a `ValueError` naming the field and its valid range on concrete
+values, and sets a `Flag` bit under `jit`, where the results are NaN):
+- Mechanisms (`Flag.MECHANISM`). A Kirchhoff plate's bending energy vanishes exactly for its rigid motions
+  w = a + b x + c y, so the plate is held iff its supports leave none of them free: a clamped edge, or two supported
+  edges, hold them all; one supported edge leaves the turn about that edge, which the mounts must hold; free edges
+  leave heave and every tilt, which the mounts must hold. The criterion is geometric, so it is exact and cheap, and
+  it is graded by the one length the model does not resolve, `mount_radius`: the plate is refused when some rigid
+  tilt its edges allow moves every mount by less than `mount_radius` per unit slope, i.e. all the mounts lie within
+  `mount_radius` of the tilt's axis (with free edges: of some line, so the mounts' smallest width is below
+  2 `mount_radius`; with one supported edge: of that edge). The plate is then held against that tilt only inside the
+  discs where the point supports' moments are singular and a real screw's head clamps, which the model leaves out:
+  with zero lever it is a mechanism (today's frequency would be 0 to rounding), and just above zero the first
+  frequency falls towards 0 with the lever. On the JESD22 board (132 x 77 x 1 mm, `mount_radius` 3 mm) with a third
+  screw off the line of two, the fundamental in Leissa's parameter omega L^2 sqrt(rho h / D) (L the longer side) is
+  0.0009, 0.035, 0.35, 1.0, 2.0, 3.3 for offsets of 1e-6, 1e-4, 1e-3, 3e-3, 6e-3, 1e-2 m, against 11.6 on its four
+  corner screws and 3.5 for a cantilever clamped along a short edge: offsets below 6 mm are refused.
+- Mounts that the model cannot tell apart (`Flag.MOUNTS_COINCIDE`): two mounts closer than `mount_radius` (one
+  inside the other's disc; identical mounts make the constraint singular, nearly identical ones ill-conditioned).
+- Mount discs (`Flag.MOUNT_OUTSIDE_PLATE`): every mount lies on the plate, and its disc of `mount_radius` too,
+  except where the mount sits on an edge itself (a boundary point support, as Leissa's corner-supported plates):
+  each mount's distance to each edge is 0 or at least `mount_radius`. The peak search stays on the plate.
+- Thin-plate theory (`Flag.OUTSIDE_THEORY`). Kirchhoff's theory neglects transverse shear and rotary inertia, so it
+  holds for thickness small against the span: the plate is refused when its thickness exceeds a tenth of its
+  shorter side (`THIN_PLATE_RATIO`), the usual limit of thin-plate theory (e.g. Szilard, Theories and Applications
+  of Plate Analysis, 2004, ch. 1; at h/a = 0.1 the simply supported square plate's fundamental is already 3.5 %
+  below Kirchhoff's in Mindlin's theory and in exact 3-D elasticity, Srinivas, Rao & Rao 1970). Its kinematics
+  (and von Karman's) need small rotations: a response whose peak deflection exceeds a quarter of the shorter side
+  (`DEFLECTION_RATIO`; a half-wave's slope pi w / a reaches pi/4) is flagged too, and `plate_notes` says when the
+  deflection exceeds the thickness (linear theory then overestimates it: mid-plane stretching is not modelled).
 """
 
+import dataclasses
 import functools
 from typing import ClassVar
 import math
@@ -33,15 +64,19 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._common.checks import Flag, Range, as_float, combine, float_dtype, flag_if, is_concrete
+from .._common.checks import Flag, Range, as_float, combine, float_dtype, flag_if, is_concrete, on_host
 from .._common.fields import check_ranges, init_fields, range_flags
 from .base import AbstractBoard, AbstractModal
+from .plate_checks import (_plate_problem, check_gauges, raise_if_outside_theory, _static_mechanism, _support_geometry, _too_thick, plate_notes)
 
 EDGE_CODES = {"F": 0, "S": 1, "C": 2}  # the power of the distance to the edge in the Ritz basis
 """Edge conditions in Leissa's letters: free, simply supported, clamped."""
 
 BASIS = (12, 12)
-"""Ritz basis functions (along x, across y)."""
+"""Ritz basis functions (along x, across y), the default of `Plate.basis`; the response checks it against a basis
+4 larger each way (`Response.convergence.basis`). Point mounts make the strain near a screw (log r) need a richer
+basis: on the JESD22 board a gauge between two screws moves by 6e-3 from 12 x 12 to 16 x 16 functions, by 2.2e-3
+from 16 x 16 to 20 x 20 and by 1.5e-4 from 20 x 20 to 24 x 24, with 48 modes."""
 
 _QUADRATURE = 64  # Gauss-Legendre points per direction: exact for the polynomial products, 1e-16 for the sines
 
@@ -153,8 +188,10 @@ class Plate(AbstractBoard):
     Leissa's letters (S supported, C clamped, F free; "SFSF": held at both ends, free sides); `mounts` points
     (x, y) (m, x from end A, y from the centre line) where the plate is held (u = 0, rotation free; screws,
     standoffs), with peaks searched outside discs of `mount_radius` around them (the bending moments are singular
-    at a point support). Edges and mounts move with the housing; clamps rotate with it. `damping_ratio` is the
-    modal damping ratio, the same for every mode.
+    at a point support). `edges=None` means "FFFF" (held by its mounts only) when mounts are given, else "SFSF".
+    Edges and mounts move with the housing; clamps rotate with it. `damping_ratio` is the modal damping ratio, the
+    same for every mode. The supports must hold the plate, the mounts' discs lie on it and the plate be thin (see
+    the module notes: `ValueError` on concrete values, `flags()` under `jit`).
     """
 
     length: Float[Array, ""]
@@ -181,11 +218,15 @@ class Plate(AbstractBoard):
     }
 
     def __init__(self, length=0.132, width=0.077, thickness=1.0e-3, youngs_modulus=22e9, density=1900.0,
-                 poisson_ratio=0.2, damping_ratio=0.0, edges="SFSF", mounts=None, mount_radius=2.5e-3,
-                 basis=BASIS):
+                 poisson_ratio=0.2, damping_ratio=0.0, edges=None, mounts=None, mount_radius=2.5e-3,
+                 basis=None):
+        if edges is None:  # DESIGN.md section 4: with mounts and no edges, held by the mounts only
+            edges = "SFSF" if mounts is None else "FFFF"
         if not (isinstance(edges, str) and len(edges) == 4 and set(edges) <= set(EDGE_CODES)):
             raise ValueError(f"Plate.edges = {edges!r}; valid: four letters of S (supported), C (clamped), F (free) "
                              "for the edges x = 0, y = -W/2, x = L, y = +W/2, e.g. 'SFSF', 'SSSS', 'FFFF'")
+        if basis is None:
+            basis = BASIS
         if not (isinstance(basis, tuple) and len(basis) == 2 and all(isinstance(b, int) and 2 <= b <= 40
                                                                      for b in basis)):
             raise ValueError(f"Plate.basis = {basis!r}; valid: (nx, ny), integers in [2, 40]")
@@ -202,17 +243,15 @@ class Plate(AbstractBoard):
 
     def __check_init__(self):
         check_ranges(self)
-        if self.mounts is not None and is_concrete(self):
-            m = np.asarray(self.mounts)
-            L, W = np.asarray(self.length)[..., None], np.asarray(self.width)[..., None]  # batches too
-            if not (np.all((m[..., 0] >= 0) & (m[..., 0] <= L)) and np.all(np.abs(m[..., 1]) <= W / 2)):
-                raise ValueError(f"Plate.mounts = {m.tolist()} m; valid: 0 <= x <= length = {np.max(L):g} m and "
-                                 f"|y| <= width/2 = {np.max(W) / 2:g} m")
-        if is_concrete(self) and _single_precision(self):
-            raise ValueError(PRECISION_MESSAGE)
-        if self.edges == "FFFF" and (self.mounts is None or self.mounts.shape[-2] < 3):
-            raise ValueError("a plate with free edges (Plate.edges = 'FFFF') needs at least 3 mounts not on one "
-                             "line: it would move as a rigid body")
+        static = _static_mechanism(self)
+        if static:
+            raise ValueError(static)
+        if is_concrete(self):
+            if _single_precision(self):
+                raise ValueError(PRECISION_MESSAGE)
+            problem = _plate_problem(on_host(self))
+            if problem:
+                raise ValueError(problem)
 
     @property
     def bending_stiffness(self) -> Float[Array, ""]:
@@ -221,6 +260,7 @@ class Plate(AbstractBoard):
 
     SECTION: ClassVar[str] = "plate"
     SURFACE: ClassVar[bool] = True
+
 
     def modes(self, n_modes: int) -> "PlateModes":
         """The lowest `n_modes` modes (one eigensolve)."""
@@ -233,6 +273,19 @@ class Plate(AbstractBoard):
         return plate_participation(self, n_modes)
 
     TABLE_DURATIONS: ClassVar[bool] = False  # a plate's superposition table holds one contact duration
+
+    def check_gauges(self, points) -> None:
+        check_gauges(self, points)
+
+    def raise_if_outside_theory(self, flags, what: str) -> None:
+        raise_if_outside_theory(self, flags, what)
+
+    def notes(self, response) -> list[str]:
+        return plate_notes(self, response)
+
+    def refined(self, step: int = 4) -> "Plate":
+        """The same plate with a Ritz basis `step` functions larger each way (at most 40): the basis check."""
+        return dataclasses.replace(self, basis=tuple(min(b + step, 40) for b in self.basis))
 
     def mirror_symmetric(self) -> bool:
         """Whether a concrete plate maps onto itself under x -> L - x (its two ends alike, its mounts in mirror
@@ -259,12 +312,12 @@ class Plate(AbstractBoard):
 
     def flags(self):
         """Traceable checks of this plate (int32 mask of `Flag`)."""
-        flags = combine(range_flags(self), flag_if(_single_precision(self), Flag.PRECISION))
-        if self.mounts is not None:
-            inside = (self.mounts[..., 0] >= 0) & (self.mounts[..., 0] <= jnp.asarray(self.length)[..., None]) & \
-                     (jnp.abs(self.mounts[..., 1]) <= jnp.asarray(self.width)[..., None] / 2)
-            flags = combine(flags, flag_if(~jnp.all(inside, axis=-1), Flag.BOARD_OUTSIDE_HOUSING))
-        return flags
+        flags = combine(range_flags(self), flag_if(_single_precision(self), Flag.PRECISION),
+                        flag_if(_too_thick(jnp, self), Flag.OUTSIDE_THEORY))
+        g = _support_geometry(jnp, self)
+        return combine(flags, flag_if(jnp.any(g.off_plate | g.crossing, axis=-1), Flag.MOUNT_OUTSIDE_PLATE),
+                       flag_if(~(g.hold >= self.mount_radius), Flag.MECHANISM),
+                       flag_if(jnp.any(g.coincide, axis=-1), Flag.MOUNTS_COINCIDE))
 
 
 PRECISION_MESSAGE = (

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 from .beam import mode_shapes
+from .plate_checks import clip_to_plate
 
 
 class FieldPeak(eqx.Module):
@@ -373,7 +374,8 @@ def find_plate_peak(
     def project(z):
         z = jnp.clip(z, lo, hi)
         px, py = _outside_mounts(plate_c, z[0] * cell[0] * plate_c.length, z[1] * cell[1] * plate_c.width)
-        return jnp.stack([px / plate_c.length / cell[0], py / plate_c.width / cell[1], z[2]])
+        # Clipped again: the disc of a mount near an edge reaches off the plate (the plate's checks refuse it).
+        return jnp.clip(jnp.stack([px / plate_c.length / cell[0], py / plate_c.width / cell[1], z[2]]), lo, hi)
 
     # Derivatives by central differences on a 19-point stencil (h = 1/16 cell): one batched evaluation, which
     # compiles to a fraction of the program that nested automatic differentiation makes.
@@ -440,6 +442,7 @@ def find_plate_peak(
             d_safe = jnp.where(d > 0, d, 1.0)
             px = jnp.where(on, mx + plate.mount_radius * dx / d_safe, px)
             py = jnp.where(on, my + plate.mount_radius * dy / d_safe, py)
+        px, py = clip_to_plate(plate, px, py)  # a disc across an edge (flagged) would put the point off the plate
     t_star = jnp.where(p_best[2] >= window * (1.0 - 1e-9), window, p_best[2])
     q = modal(t_star)
     f = measure(plate, *(jnp.sum(coeffs * q * s) for s in modes.shapes(px, py)))

@@ -38,6 +38,11 @@ class Flag(enum.IntFlag):
     WINDOW_RANGE = 65536  # an explicit `Numerics.window` leaves the top mode < 2 time-grid points per period
     OUTSIDE_TABLE = 131072  # a drop's contact duration outside the durations its `SuperpositionTable` spans
     PRECISION = 262144  # a plate in float32: its Ritz eigenproblem needs float64
+    MOUNT_OUTSIDE_PLATE = 524288  # a plate's mount off the plate, or its disc (`mount_radius`) across an edge
+    MECHANISM = 1048576  # a plate's supports leave a rigid motion free, or hold it only within a mount's radius
+    MOUNTS_COINCIDE = 2097152  # two of a plate's mounts closer than `mount_radius`: the model cannot tell them apart
+    GAUGE_OUTSIDE = 4194304  # a strain gauge off the plate, inside a mount's disc, or not finite
+    OUTSIDE_THEORY = 8388608  # a plate too thick for thin-plate theory, or deflecting beyond small rotations
 
     @classmethod
     def describe(cls, flags) -> list[str]:

@@ -62,6 +62,22 @@ def _fields(scene, response, numerics, x, nt):
     return Fields(x, t, u, strain, board.youngs_modulus * strain)
 
 
+def _not_converged(board, response: Response) -> str:
+    """Which convergence estimate failed, by how much, and what to raise."""
+    c = response.convergence
+    name, value = c.worst() if c is not None else ("modes", float(response.error_estimate))
+    change = f"{value * 100:.2g} % (Numerics.convergence_rtol = 0.1 %)"
+    if name == "basis":
+        return (f"not converged: a Ritz basis 4 functions larger each way changes the peak or a gauge by {change}; "
+                f"raise Plate.basis (now {board.basis}; `basis = [nx, ny]` in the scene file's [plate], at most 40)")
+    what = "the peak" if name == "modes" else "a gauge's peak strain"
+    # A check with fewer modes than the answer means the count hit its cap.
+    fix = ("raise Numerics.max_modes (the CLI's --max-modes)" if int(response.check_modes) < int(response.n_modes)
+           else "raise Numerics.pulse_modes (modes up to f_k x duration >= "
+           f"{Numerics().for_board(board).pulse_band:g} by default)")
+    return f"not converged: {int(response.check_modes)} modes change {what} by {change}; {fix}"
+
+
 def response_notes(scene: Scene, response: Response) -> list[str]:
     """What a reader of a drop's numbers should know: where the model's assumptions stop holding or the answer is
     not converged (an empty list when nothing needs saying)."""
@@ -71,13 +87,8 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
         notes.append(f"ideal impulse (contact duration 0): the peak grows with the mode count and never converges "
                      f"(stopped at {int(response.n_modes)} modes); give Contact.duration a physical value "
                      "(0.05-1 ms)")
-    elif not bool(response.converged):
-        notes.append(f"not converged: {int(response.check_modes)} modes change the peak by "
-                     f"{float(response.error_estimate) * 100:.2g} % (Numerics.convergence_rtol = "
-                     "0.1 %); " + (
-                         # A check with fewer modes means the count hit its cap.
-                         "raise Numerics.max_modes" if int(response.check_modes) < int(response.n_modes)
-                         else "raise Numerics.pulse_modes (modes up to f_k x duration >= 2 by default)"))
+    elif not bool(response.converged) and int(response.flags) == 0:
+        notes.append(_not_converged(board, response))
     if float(board.youngs_modulus) < 1e6 or float(board.thickness) > 0.05:
         notes.append(f"the board is not an engineering board (E = {float(board.youngs_modulus):.4g} Pa, thickness "
                      f"{float(board.thickness):.4g} m): the thesis scene's nondimensional units, so stresses in MPa "
@@ -89,7 +100,7 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
                      "linear (small-deflection) theory overestimates it; mid-plane stretching matters "
                      + ("(not modelled for plates yet)" if board.SURFACE
                         else "(Numerics(method=\"diffrax\", stretching=True))"))
-    return notes
+    return notes + board.notes(response)
 
 
 def plate_strain_map(scene: Scene, response: Response, numerics: Numerics | None = None, t=None, nx: int = 133,
@@ -108,6 +119,7 @@ def plate_strain_map(scene: Scene, response: Response, numerics: Numerics | None
 @filter_jit
 def _strain_map(scene, numerics, used, t, nx, ny):
     plate = scene.board
+    numerics = numerics.for_board(plate)
     M = numerics.computed_modes
     motion = drop_motion(scene, numerics)[0]
     mask = (jnp.arange(1, M + 1) <= used).astype(float_dtype())

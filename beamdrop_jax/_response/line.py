@@ -11,7 +11,7 @@ from .._board.beam import wavenumbers
 from .._board.search import FieldPeak, find_peak
 from .._common.checks import Flag, combine, flag_if
 from .numerics import Numerics
-from .results import Response
+from .results import Convergence, Response
 from .setup import _Setup, _setup
 
 
@@ -81,6 +81,7 @@ def _respond_line(board, motion, numerics: Numerics, flags) -> Response:
         check_modes=check,
         error_estimate=error,
         converged=(error <= numerics.convergence_rtol) & ~bad,
+        convergence=Convergence(error, jnp.zeros_like(error), jnp.zeros_like(error)),
         window=window,
         flags=flags,
     )

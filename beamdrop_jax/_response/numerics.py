@@ -1,6 +1,8 @@
 """How the board's response is computed: `Numerics`, static configuration of modes, grids, solver and search."""
 
 
+import dataclasses
+
 import equinox as eqx
 
 from .._common.checks import Range, as_int, as_real
@@ -21,7 +23,14 @@ class Numerics(eqx.Module):
     - `n_modes`: `None` picks the count from the scene (modes up to f_k tau >= `pulse_modes`, at least
       `min_modes`, at most `max_modes`) and checks it against twice as many, or `max_modes` when twice as many
       exceed it (half as many only when the count is at the cap);
-      an int means exactly modes 1..n_modes, checked against half as many.
+      an int means exactly modes 1..n_modes, checked against half as many. `max_modes` and `pulse_modes` left
+      `None` take the board's own (`AbstractBoard.NUMERICS`; 16 and 2 for the beam and the plate). A plate on
+      point mounts needs modes well past the pulse's band near its screws: on the JESD22 board 48 modes and
+      `pulse_modes=3` (with `frequency_growth=1`, which keeps its time grid small).
+    - `frequency_growth`: how the top computed mode's frequency grows with the mode count M, which sizes the time
+      grid: 2 (the default) for M^2 (a beam; a bound for any board), 1 for about 1.5 M (a plate on mounts, by
+      Weyl's law in two dimensions; the grid then allows 2 M + 8 periods, and a plate whose frequencies outgrow
+      it is flagged, `Flag.WINDOW_RANGE`).
     - `window`: time window (s); `None` is the pulse duration plus one fundamental period. With several impacts
       it is the window searched after each impact (the free vibration between impacts repeats with the
       fundamental period when the axial force is 0, so one period after each pulse holds the peak).
@@ -39,9 +48,9 @@ class Numerics(eqx.Module):
     method: str = eqx.field(static=True, default="closed_form")
     solver: str = eqx.field(static=True, default="Tsit5")
     n_modes: int | None = eqx.field(static=True, default=None)
-    max_modes: int = eqx.field(static=True, default=16)
+    max_modes: int | None = eqx.field(static=True, default=None)
     min_modes: int = eqx.field(static=True, default=4)
-    pulse_modes: float = eqx.field(static=True, default=2.0)
+    pulse_modes: float | None = eqx.field(static=True, default=None)
     window: float | None = eqx.field(static=True, default=None)
     rtol: float = eqx.field(static=True, default=1e-8)
     atol: float = eqx.field(static=True, default=1e-12)
@@ -56,6 +65,7 @@ class Numerics(eqx.Module):
     law: str = eqx.field(static=True, default="poisson")
     max_impacts: int = eqx.field(static=True, default=1)
     rest_speed: float = eqx.field(static=True, default=0.02)
+    frequency_growth: int | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         def bad(field, value, valid):
@@ -69,8 +79,9 @@ class Numerics(eqx.Module):
                 bad(name, flag, "True or False")
         if self.n_modes is not None:
             as_int(self.n_modes, "Numerics.n_modes", 1, 512)
-        as_int(self.max_modes, "Numerics.max_modes", 2, 512)
-        as_int(self.min_modes, "Numerics.min_modes", 1, self.max_modes)
+        if self.max_modes is not None:
+            as_int(self.max_modes, "Numerics.max_modes", 2, 512)
+        as_int(self.min_modes, "Numerics.min_modes", 1, self.max_modes or 512)
         for name in ("points_per_period", "x_points_per_mode", "candidates", "max_steps", "max_impacts"):
             as_int(getattr(self, name), f"Numerics.{name}", 1)
         as_int(self.newton_steps, "Numerics.newton_steps", 0)
@@ -78,7 +89,10 @@ class Numerics(eqx.Module):
             as_real(self.window, "Numerics.window", Range(0.0, 10.0, lo_open=True, unit="s"))
         for name in ("rtol", "atol", "convergence_rtol"):
             as_real(getattr(self, name), f"Numerics.{name}", Range(0.0, 1.0, lo_open=True))
-        as_real(self.pulse_modes, "Numerics.pulse_modes", Range(0.0, 100.0, lo_open=True))
+        if self.pulse_modes is not None:
+            as_real(self.pulse_modes, "Numerics.pulse_modes", Range(0.0, 100.0, lo_open=True))
+        if self.frequency_growth not in (None, 1, 2):
+            raise ValueError(f"Numerics.frequency_growth = {self.frequency_growth!r}; valid: None (the board's), 1, 2")
         as_real(self.rest_speed, "Numerics.rest_speed", Range(0.0, lo_open=True, unit="m/s"))
         if self.max_impacts > 1 and self.method != "closed_form":
             raise ValueError(
@@ -88,12 +102,24 @@ class Numerics(eqx.Module):
         if self.stretching and self.method != "diffrax":
             raise ValueError('Numerics.stretching = True needs Numerics.method = "diffrax" (it has no closed form)')
 
+    def for_board(self, board) -> "Numerics":
+        """These numerics with the fields left `None` set to the board's own (`AbstractBoard.NUMERICS`)."""
+        own = {name: value for name, value in board.NUMERICS.items() if getattr(self, name) is None}
+        return dataclasses.replace(self, **own) if own else self
+
     @property
     def computed_modes(self) -> int:
-        return self.max_modes if self.n_modes is None else self.n_modes
+        return (16 if self.max_modes is None else self.max_modes) if self.n_modes is None else self.n_modes
+
+    @property
+    def pulse_band(self) -> float:
+        """`pulse_modes`, or a beam's 2 when unset."""
+        return 2.0 if self.pulse_modes is None else self.pulse_modes
 
     def grid_shape(self) -> tuple[int, int]:
-        """(nx, nt): with N = 0 mode k makes k^2 oscillations per fundamental period, so the top mode needs about
-        M^2 + a few periods over the default window."""
+        """(nx, nt): with N = 0 a beam's mode k makes k^2 oscillations per fundamental period, so the top mode
+        needs about M^2 + a few periods over the default window; a plate's (`frequency_growth` 1) about 1.5 M,
+        allowed 2 M + 8 (a grid too coarse for the plate's own frequencies is flagged, `Flag.WINDOW_RANGE`)."""
         M = self.computed_modes
-        return self.x_points_per_mode * M + 1, self.points_per_period * (M * M + 8) + 1
+        periods = 2 * M + 8 if self.frequency_growth == 1 else M * M + 8
+        return self.x_points_per_mode * M + 1, self.points_per_period * periods + 1

@@ -11,6 +11,7 @@ from jaxtyping import Array, Float
 from .._common.checks import Flag, combine, flag_if, float_dtype, is_concrete
 from .._common.compile import filter_jit
 from .._scene.containers import Scene, require_single, scene_flags
+from .._board.plate_checks import plate_grid_deflection, response_flags
 from .line import _membrane, _search
 from .numerics import Numerics
 from .setup import _setup
@@ -37,8 +38,10 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     mask = (S.k <= S.used).astype(float_dtype())
     if board.SURFACE:
         values = _plate_searches(S, board, numerics, S.modes, quantities, mask).value
+        deflection = (values[quantities.index("deflection")] if "deflection" in quantities
+                      else plate_grid_deflection(S.modes, S.Q, mask))
         flags = combine(scene_flags(scene), impact_flags, board.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
-                        flag_if(~jnp.all(jnp.isfinite(values)), Flag.NONFINITE_RESULT))
+                        flag_if(~jnp.all(jnp.isfinite(values)), Flag.NONFINITE_RESULT), response_flags(board, deflection))
         return jnp.where(flags != 0, jnp.nan, values), flags
     kinds = sorted({"deflection" if q == "deflection" else "curvature" for q in quantities})
     rows = jnp.stack([(jnp.ones_like(S.curvature) if k == "deflection" else S.curvature) * mask for k in kinds])

@@ -15,6 +15,27 @@ from .._common.report import plain, summary_text
 from .._impact.routh import ImpactMode
 
 
+class Convergence(eqx.Module):
+    """What the convergence check measured, each a relative change (0 where the model is exact):
+
+    - `modes`: of the peak stress, with `Response.check_modes` modes instead of `Response.n_modes`;
+    - `gauges`: of the gauges' peak strains with the check's modes (the largest over the gauges; 0 without);
+    - `basis`: of the peak stress and the gauges' peak strains with a Ritz basis 4 functions larger each way, at
+      the same points and times (a plate; 0 for a beam, whose modes are exact).
+
+    `Response.converged` holds when each is within `Numerics.convergence_rtol`; `worst()` names the largest."""
+
+    modes: Float[Array, ""]
+    gauges: Float[Array, ""]
+    basis: Float[Array, ""]
+
+    def worst(self) -> tuple[str, float]:
+        """(name, value) of the largest estimate (concrete results)."""
+        values = {"modes": float(self.modes), "gauges": float(self.gauges), "basis": float(self.basis)}
+        name = max(values, key=values.get)
+        return name, values[name]
+
+
 class Response(eqx.Module):
     """What a drop does to the board.
 
@@ -24,8 +45,9 @@ class Response(eqx.Module):
     - `peak`: a `Peak`.
     - `frequencies`: natural frequencies of the computed modes, Hz.
     - `n_modes`: modes in the reported peak; `check_modes`: modes of the convergence check.
-    - `error_estimate`: |peak(n_modes) - peak(check_modes)| / peak(n_modes), relative, for the stress.
-    - `converged`: `error_estimate <= Numerics.convergence_rtol`.
+    - `error_estimate`: the largest of the convergence estimates (`convergence`: modes, gauges, basis), relative.
+    - `converged`: `error_estimate <= Numerics.convergence_rtol` (and the result not flagged).
+    - `convergence`: each estimate (`Convergence`).
     - `window`: time window, s (to one fundamental period after the last impact's pulse). `flags`: `Flag` mask (0 = valid; otherwise the peak fields are NaN).
     - `gauges`: strain gauge readings (`Gauges`) at the points asked for (plates; None otherwise); `is_plate`.
     """
@@ -44,6 +66,7 @@ class Response(eqx.Module):
     flags: Int[Array, ""]
     gauges: "Gauges | None" = None
     is_plate: bool = eqx.field(static=True, default=False)
+    convergence: "Convergence | None" = None
 
     def summary(self) -> dict:
         """The numbers of one response, units in the keys (JSON-ready with `plain`; `repr` prints them)."""

@@ -30,7 +30,7 @@ def _mode_counts(board, motion, numerics: Numerics):
         return jnp.int32(M), jnp.int32(max(M // 2, 1))
     duration = motion.pulse_duration()
     f_tau = natural_frequencies(board, M) / (2 * math.pi) * duration
-    needed = jnp.sum(f_tau < numerics.pulse_modes) + 1  # first k with f_k tau >= target
+    needed = jnp.sum(f_tau < numerics.pulse_band) + 1  # first k with f_k tau >= target
     used = jnp.clip(needed, numerics.min_modes, M).astype(jnp.int32)
     # Check against more modes whenever the cap leaves any (twice as many when it allows): half as many would
     # measure the error of the smaller model, not of the answer.
@@ -107,20 +107,31 @@ MIN_POINTS_PER_PERIOD = 2
 then cannot see that mode's peaks and Newton refinement starts from the wrong ones."""
 
 
-def _window_points(board, numerics: Numerics, used):
-    """Time-grid points per period of the top used mode over an explicit window (inf with the default window,
-    which spans one fundamental period after the pulse and is sized for it)."""
-    if numerics.window is None:
+def _window_points(board, numerics: Numerics, used, span=None):
+    """Time-grid points per period of the top used mode over an explicit window, or over a plate's default
+    window `span` (its grid follows an estimate of the plate's frequencies); inf with a beam's default window,
+    which spans one fundamental period after the pulse and is sized for it."""
+    if numerics.window is None and (span is None or numerics.frequency_growth != 1):
         return jnp.asarray(jnp.inf, dtype=float_dtype())
     omega = natural_frequencies(board, numerics.computed_modes)
     f_top = omega[jnp.clip(used, 1, numerics.computed_modes) - 1] / (2 * math.pi)
-    return (numerics.grid_shape()[1] - 1) / (numerics.window * f_top)
+    window = numerics.window if numerics.window is not None else span
+    return (numerics.grid_shape()[1] - 1) / (window * f_top)
 
 
 def _raise_if_window(board, motion, numerics: Numerics, flags, what: str, with_check: bool) -> None:
     """Eagerly, `Flag.WINDOW_RANGE` as a `ValueError` naming the field, its value and the valid range."""
     if not int(flags) & Flag.WINDOW_RANGE:
         return
+    numerics = numerics.for_board(board)
+    if numerics.window is None:  # a plate's default window: its grid's estimate of its frequencies fell short
+        used, check = _mode_counts(board.modes(numerics.computed_modes), motion, numerics)
+        used = int(max(used, check) if with_check else used)
+        raise ValueError(
+            f"{what}: the time grid leaves mode {used} of this {board.describe()} fewer than "
+            f"{MIN_POINTS_PER_PERIOD} points per period (its frequencies grow faster with the mode count than the "
+            "grid assumes; Flag.WINDOW_RANGE); valid: Numerics(points_per_period=...) larger than "
+            f"{numerics.points_per_period}, or fewer modes (Numerics.max_modes)")
     used, check = _mode_counts(board, motion, numerics)
     used = int(max(used, check) if with_check else used)
     points = float(_window_points(board, numerics, used))
@@ -135,6 +146,7 @@ def _raise_if_window(board, motion, numerics: Numerics, flags, what: str, with_c
 
 
 def _setup(board, motion, numerics: Numerics, with_check: bool) -> _Setup:
+    numerics = numerics.for_board(board)
     M = numerics.computed_modes
     # A plate's modes come from one eigensolve, shared by everything below.
     model = board.modes(M)
@@ -149,7 +161,8 @@ def _setup(board, motion, numerics: Numerics, with_check: bool) -> _Setup:
     Q = (_grid_factors(*stop_gradient((modal, model, motion)), numerics, jax.lax.stop_gradient(t)) if numerics.refine
          else _grid_factors(modal, model, motion, numerics, t))
     top = jnp.maximum(used, check) if with_check else used
-    flags = flag_if(_window_points(model, numerics, top) < MIN_POINTS_PER_PERIOD, Flag.WINDOW_RANGE)
+    flags = flag_if(_window_points(model, numerics, top, _span(model, motion, numerics)) < MIN_POINTS_PER_PERIOD,
+                    Flag.WINDOW_RANGE)
     curvature = model.curvature_scale(M)
     return _Setup(used, check, window, modal, failed, x, t, Q, k, curvature, flags, model)
 

@@ -50,9 +50,11 @@ def board_response(board: AbstractBoard, motion, numerics: Numerics | None = Non
         methods = " or ".join(f'"{m}"' for m in motion.METHODS)
         extra = " (it has no closed form)" if "closed_form" not in motion.METHODS else ""
         raise ValueError(f"a {type(motion).__name__} support motion needs Numerics(method={methods}){extra}")
-    response = _board_response_jit(board, motion, numerics, _gauge_points(gauges))
+    board.check_gauges(points := _gauge_points(gauges))
+    response = _board_response_jit(board, motion, numerics, points)
     if is_concrete(board, motion, response.flags) and int(response.flags):
         board.__check_init__()
+        board.raise_if_outside_theory(response.flags, "board_response")
         _raise_if_window(board, motion, numerics, response.flags, "board_response", with_check=True)
         raise_if_flagged(response.flags & ~Flag.SOLVER_FAILED, "board_response")
     return response
@@ -88,6 +90,7 @@ def _raise_eagerly(scene: Scene, numerics: Numerics, flags, impacts: Impacts | N
     """The compiled run found a problem: the eager checks name the field and its valid range."""
     check_scene(scene)
     housing_impact(scene, law=numerics.law)
+    scene.board.raise_if_outside_theory(flags, what)
     _raise_if_window(scene.board, drop_motion(scene, numerics)[0], numerics, flags, what, with_check)
     if impacts is not None and int(impacts.ending) == Ending.SEARCH_GAVE_UP:
         n = int(impacts.count)
@@ -120,7 +123,8 @@ def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Res
     """
     numerics = Numerics() if numerics is None else numerics
     require_single(scene, "simulate")
-    response = _simulate_jit(scene, numerics, _gauge_points(gauges))
+    scene.board.check_gauges(points := _gauge_points(gauges))
+    response = _simulate_jit(scene, numerics, points)
     if is_concrete(scene, response.flags) and int(response.flags):
         _raise_eagerly(scene, numerics, response.flags, response.impacts, "simulate")
     return response

@@ -452,7 +452,8 @@ def _kept_modes(scene: Scene):
     """The modes `simulate` keeps for a scene's pulse (one compiled program: op by op, a plate's eigensolve took
     0.25 s)."""
 
-    return _mode_counts(scene.board, support_motion(scene, jnp.ones(2)), Numerics())[0]
+    return _mode_counts(scene.board.modes(Numerics().for_board(scene.board).computed_modes),
+                        support_motion(scene, jnp.ones(2)), Numerics().for_board(scene.board))[0]
 
 
 def table_numerics(scene: Scene, durations=None) -> Numerics:

@@ -7,10 +7,11 @@ import jax.numpy as jnp
 
 from .._board.base import Gauges, Peak
 from .._board.plate import surface_strain, surface_stress
+from .._board.plate_checks import blank_readings, response_flags
 from .._board.search import field_on_grid, find_plate_peak, plate_starts
 from .._common.checks import Flag, combine, flag_if, float_dtype
 from .numerics import Numerics
-from .results import Response
+from .results import Convergence, Response
 from .setup import _Setup, _setup
 
 
@@ -121,10 +122,19 @@ def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None) -> Res
     found = _plate_searches(S, plate, numerics, modes, ("stress", "strain", "deflection"), used_mask,
                             check=(S.k <= S.check).astype(float_dtype()))
     stress, strain, deflection, check = (jax.tree_util.tree_map(lambda v: v[i], found) for i in range(4))
-    error = jnp.abs(stress.value - check.value) / jnp.maximum(stress.value, jnp.finfo(S.window.dtype).tiny)
+    tiny = jnp.finfo(S.window.dtype).tiny
+    modes_error = jnp.abs(stress.value - check.value) / jnp.maximum(stress.value, tiny)
+    check_mask = (S.k <= S.check).astype(float_dtype())
+    read = None if gauges is None else _gauges(plate, S, modes, used_mask, gauges)
+    gauges_error = jnp.zeros_like(modes_error) if read is None else jnp.max(
+        jnp.abs(_readings(plate, S.modal, modes, check_mask, read) - read.peak_strain)
+        / jnp.maximum(read.peak_strain, tiny))
+    basis_error = _basis_error(plate, motion, numerics, S, stress, read, tiny)
+    convergence = Convergence(modes_error, gauges_error, basis_error)
+    error = jnp.maximum(jnp.maximum(modes_error, gauges_error), basis_error)
     nonfinite = ~jnp.isfinite(stress.value) | ~jnp.isfinite(deflection.value)
     flags = combine(flags, plate.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
-                    flag_if(nonfinite, Flag.NONFINITE_RESULT))
+                    flag_if(nonfinite, Flag.NONFINITE_RESULT), response_flags(plate, deflection.value, gauges))
     bad = flags != 0
     nan = lambda v: jnp.where(bad, jnp.nan, v)  # noqa: E731
     peak = Peak(
@@ -136,5 +146,32 @@ def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None) -> Res
         impulse=None, housing=None, impacts=None, support_jumps=motion.first_jumps(), peak=peak,
         frequencies=modes.frequencies() / (2 * math.pi), n_modes=S.used, check_modes=S.check, error_estimate=error,
         converged=(error <= numerics.convergence_rtol) & ~bad, window=S.window, flags=flags,
-        gauges=None if gauges is None else _gauges(plate, S, modes, used_mask, gauges), is_plate=True,
+        gauges=None if read is None else blank_readings(read, bad), is_plate=True, convergence=convergence,
     )
+
+
+def _readings(plate, modal, modes, mask, read: Gauges):
+    """The gauges' strains at their peak times with another modal solution or mask (a convergence check)."""
+
+    def reading(x, y, t):
+        q = modal(t) * mask
+        _, a, b, c = (jnp.sum(q * v) for v in modes.shapes(x, y))
+        return surface_strain(plate, a, b, c)
+
+    return jax.vmap(reading)(read.x, read.y, read.peak_time)
+
+
+def _basis_error(plate, motion, numerics: Numerics, S: _Setup, stress, read, tiny):
+    """The relative change of the peak stress (at its point and time) and of the gauges' peak strains (at theirs)
+    with a Ritz basis 4 functions larger each way: the peak is stationary there, so the change at the same point
+    measures the basis's error to first order without a second search."""
+    finer = plate.refined()
+    F = _setup(finer, motion, numerics, with_check=False)
+    mask = (F.k <= S.used).astype(float_dtype())
+    q = F.modal(stress.t) * mask
+    _, kxx, kyy, kxy = (jnp.sum(q * v) for v in F.modes.shapes(stress.x, stress.y))
+    error = jnp.abs(surface_stress(finer, kxx, kyy, kxy) - stress.value) / jnp.maximum(stress.value, tiny)
+    if read is not None:
+        fine = _readings(finer, F.modal, F.modes, mask, read)
+        error = jnp.maximum(error, jnp.max(jnp.abs(fine - read.peak_strain) / jnp.maximum(read.peak_strain, tiny)))
+    return jax.lax.stop_gradient(error)

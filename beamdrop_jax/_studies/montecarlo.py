@@ -388,7 +388,7 @@ def montecarlo(
         # Grids live only `inner_batch` drops at a time, so a chunk is memory-light: large chunks amortise the
         # per-chunk transfer and dispatch.
         batch = min(n, 16384) if batch_size is None else int(batch_size)
-        inner = inner_batch(numerics, batch, n_dev, plate=scene.board.SURFACE)
+        inner = inner_batch(numerics.for_board(scene.board), batch, n_dev, plate=scene.board.SURFACE)
         evaluate = lambda chunk, axes: evaluate_batch(chunk, axes, numerics, not refine_deflection, inner)  # noqa: E731
     batch = -(-batch // inner) * inner
     axes = sample_axes(samples, scene)
