@@ -38,6 +38,7 @@ class Flag(enum.IntFlag):
     WINDOW_RANGE = 65536  # an explicit `Numerics.window` leaves the top mode < 2 time-grid points per period
     OUTSIDE_TABLE = 131072  # a drop's contact duration outside the durations its `SuperpositionTable` spans
     PRECISION = 262144  # a plate in float32: its Ritz eigenproblem needs float64
+    NOT_SEPARATED = 524288  # a compliant landing still in contact at its time bound
 
     @classmethod
     def describe(cls, flags) -> list[str]:
