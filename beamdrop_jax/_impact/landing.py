@@ -81,6 +81,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._common.checks import GRAVITY, Flag, as_float, combine, flag_if, is_concrete
 from .._common.compile import filter_jit
+from .._common.report import plain, summary_text
 
 E_MIN = 0.01
 """Restitution floor of the compliant contact (the unloading stiffness is k / e^2)."""
@@ -235,6 +236,27 @@ class Landing(eqx.Module):
     end_state: Float[Array, " 31"]
     gravity: Float[Array, ""]
 
+    def summary(self) -> dict:
+        """The landing's numbers, units in the keys (JSON-ready; `repr` prints them)."""
+        if jnp.ndim(self.t_end):
+            raise ValueError("Landing.summary() needs one landing (index a batched one first)")
+        return plain({
+            "corner_impulses_Ns": self.P,
+            "velocity_jump_m_per_s": self.dv_G,
+            "spin_jump_rad_per_s": self.dw,
+            "contact_times_ms": 1e3 * self.contact_time,
+            "end_time_ms": 1e3 * self.t_end,
+            "energy_change_J": self.energy_change,
+            "solver_steps": self.steps,
+            "flags": Flag.describe(self.flags),
+        })
+
+    def __repr__(self) -> str:
+        try:
+            return summary_text(self.summary(), "Landing")
+        except (ValueError, TypeError, jax.errors.ConcretizationTypeError):
+            return f"Landing(P.shape={tuple(jnp.shape(self.P))})"
+
     def _state(self, t):
         """Nondimensional state at t (s), held at its ends outside [0, t_end]: the warped time sigma where the
         dense solution's physical time is t, by bisection (it grows monotonically with sigma)."""
@@ -379,7 +401,8 @@ def _model(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps) -> _Model:
     V = jnp.sqrt(jnp.where(speed2 > 0, speed2, 1.0))
     T = jnp.where(tau > 0, tau, 1.0)
     L = V * T
-    eps = jnp.where(jnp.isnan(v_eps), 1e-3, v_eps / V)
+    # The default (NaN) is picked before any arithmetic: a NaN in an untaken branch would poison gradients.
+    eps = jnp.where(jnp.isnan(v_eps), 1e-3 * V, v_eps) / V
     q = housing_corners(W, H)
     o0 = _rotate(q, jnp.cos(theta), jnp.sin(theta))  # corners from G in the ground frame, m
     y0 = -jnp.min(o0[:, 1])
@@ -397,7 +420,7 @@ def _landing(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps, t_max, *, rtol, atol
     # d = d_max = minus the corners' heights (no corner has a memory yet); the physical time last.
     y_init = jnp.concatenate([jnp.zeros(2), v / model.V, jnp.zeros(1), (w * model.R / model.V)[None], -model.h0,
                               -model.h0, jnp.zeros(17)])
-    t_bound = jnp.where(jnp.isnan(t_max), 10.0, t_max / model.T)
+    t_bound = jnp.where(jnp.isnan(t_max), 10.0 * model.T, t_max) / model.T
     controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=0.3, icoeff=0.3, dtmax=_DSIGMA_MAX)
     event = diffrax.Event(lambda sigma, y, args, **kw: model.separated(y) | (y[_T] >= t_bound))
     sol = diffrax.diffeqsolve(
