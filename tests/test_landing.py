@@ -2,8 +2,9 @@
 law's limit as the contact shortens (sliding and sticking), energy, gradients and continuity through flat.
 
 Two compiled programs serve the whole file: `_program` (the landing, vmapped over rows of parameters) and
-`_grad_program` (with the gradient in the orientation); batches are padded to a fixed size so that neither
-recompiles."""
+`_grad_program` (with the gradient of the vertical velocity after it in every input); batches are padded to a
+fixed size so that neither recompiles. About 40 s on the shared 2-core development machine with a cold
+compilation cache, 30 s warm (most of it the reverse passes of the property test)."""
 
 import math
 
@@ -76,6 +77,7 @@ def batch(rows, landings=False):
     """The landings of `rows` as NumPy arrays (and, with `landings`, the batched `Landing` itself)."""
     res = _program(_padded(rows))
     out = {key: np.asarray(value)[: len(rows)] for key, value in _numbers(res).items()}
+    assert np.all(out["steps"] < 4096)
     return (out, res) if landings else out
 
 
@@ -86,7 +88,7 @@ def batch_grad(rows):
 
 def routh(p, law="stronge"):
     """The rigid law for the lowest corner of row p, and that corner's index."""
-    W, H, m, k, mu, e, tau, theta, vx, vy, w = p[:11]
+    W, H, m, k, mu, e, _, theta, vx, vy, w = p[:11]
     housing = bd.Housing(width=W, height=H, mass=m, radius_of_gyration=k)
     hit = bd.corner_impact(housing, bd.Contact(friction=mu, restitution=e, duration=0.0), theta,
                            jnp.array([vx, vy]), w, law=law)
@@ -247,8 +249,9 @@ def test_energy_never_grows_and_nothing_is_nan(cases):
     # A regularisation of 1e-2 V keeps sticking contacts to a few hundred steps (the property holds for any).
     rows = [row(theta, vx, -4.0, w, mu=mu, e=e, g=0.0, v_eps=1e-2 * math.hypot(vx, 4.0)) for theta, mu, e, w, vx in
             cases[:-1]]
+    # And one at the default v_eps, 1e-3 V, with friction up to 0.6 (a sticking corner then costs 1000 steps).
     theta, mu, e, w, vx = cases[-1]
-    rows.append(row(theta, vx, -4.0, w, mu=mu, e=e, g=0.0))  # and the default v_eps, 1e-3 V, for one
+    rows.append(row(theta, vx, -4.0, w, mu=0.4 * mu, e=e, g=0.0))
     out = batch_grad(rows)
     grads = out["grad"]
     m, inertia = float(HOUSING.mass), float(HOUSING.inertia)
