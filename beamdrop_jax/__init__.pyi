@@ -33,6 +33,7 @@ from ._impact.clatter import (
     impact_sequence as impact_sequence,
     next_contact as next_contact,
 )
+from ._impact.landing import Landing as Landing, compliant_landing as compliant_landing
 from ._impact.motion import HalfSine as HalfSine, Impulse as Impulse, PulseTrain as PulseTrain, Record as Record
 from ._impact.motion import JESD22_B111_CONDITION_B as JESD22_B111_CONDITION_B
 from ._board.beam import ENDS as ENDS

@@ -211,3 +211,151 @@ def clatter_reference(W, H, m, I, theta, v, w, mu, e, n_impacts, g=9.80665, ds=2
         v = v + np.array([Pt, Pn]) / m
         w = w + (rel[0] * Pn - rel[1] * Pt) / I
     return out
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Compliant landing: the rigid housing on hysteretic corner springs with regularised Coulomb friction, integrated
+# by SciPy phase by phase, every contact start, turn, release and reload an event.
+
+
+def compliant_landing_reference(W, H, m, I, theta, v, w, mu, e, tau, v_eps, g=9.80665, t_max=None, rtol=1e-12):
+    """The landing of a W x H housing (mass m, inertia I about G) whose lowest corner touches the ground at angle
+    `theta` with G moving at `v` and spinning at `w`: each corner below the ground pushes up with a hysteretic
+    spring (loading k d; unloading (k / e^2) (d - d_p), d_p = (1 - e^2) d_max; nothing below d_p) of stiffness
+    k = m_eff (pi (1 + e) / (2 tau))^2, m_eff = 1 / (1/m + x^2 / I) with x the corner's horizontal lever arm at the
+    first touch, and friction -mu N u / sqrt(u^2 + v_eps^2) opposes its horizontal velocity u. Gravity g.
+
+    Each corner is in one of four phases: `free` (no memory), `load` (N = k d), `unload` (on the unloading line),
+    `released` (N = 0 but still below the ground, memory kept). Between phase changes the equations are smooth and
+    `solve_ivp` (DOP853) integrates them; the changes are events: free -> load when the corner reaches the ground;
+    load -> unload when its penetration stops growing (d_max = that penetration); unload -> released at d = d_p;
+    unload -> load at d = d_max; released -> unload at d = d_p (coming back down); released -> free at the ground.
+    The landing ends when no corner is loaded or unloading and every corner below the ground moves up.
+
+    Returns a dict: P (4, 2) per-corner impulses (Pt, Pn) in the corner order (+W/2, +H/2), (-W/2, +H/2),
+    (-W/2, -H/2), (+W/2, -H/2); dv_G = sum(P) / m; dw (spin change); t_end; separated; contacts, a list of
+    (corner, start, end) times of each force-carrying interval.
+    """
+    from scipy.integrate import solve_ivp
+
+    q = np.array([[W / 2, H / 2], [-W / 2, H / 2], [-W / 2, -H / 2], [W / 2, -H / 2]])
+    v = np.asarray(v, float)
+
+    def rel(th):  # corners from G in the ground frame
+        c, s = math.cos(th), math.sin(th)
+        return np.stack([q[:, 0] * c - q[:, 1] * s, q[:, 0] * s + q[:, 1] * c], axis=1)
+
+    r0 = rel(theta)
+    yG0 = -r0[:, 1].min()
+    w1 = math.pi * (1 + e) / (2 * tau)
+    k = w1**2 / (1 / m + r0[:, 0] ** 2 / I)
+    ku = k / e**2
+    # state: X, Y (G's displacement), vx, vy, theta, w, Pt (4), Pn (4)
+    y = np.concatenate([[0.0, 0.0, v[0], v[1], theta, w], np.zeros(8)])
+    V = math.hypot(math.hypot(v[0], v[1]), w * math.hypot(W, H) / 2)
+    L = V * tau
+    scale = np.concatenate([[L, L, V, V, L / math.hypot(W, H), V / math.hypot(W, H)], np.full(8, m * V)])
+    t_max = 10 * tau if t_max is None else t_max
+
+    def kin(y):
+        r = rel(y[4])
+        d = -(yG0 + y[1] + r[:, 1])
+        vel = np.stack([y[2] - y[5] * r[:, 1], y[3] + y[5] * r[:, 0]], axis=1)
+        return r, d, -vel[:, 1], vel[:, 0]
+
+    phase = ["free"] * 4
+    dmax = np.zeros(4)
+    _, d, drate, _ = kin(y)
+    for i in range(4):
+        if d[i] >= 0 and drate[i] > 0:
+            phase[i] = "load"
+
+    def normal(d, dp):
+        N = np.zeros(4)
+        for i in range(4):
+            if phase[i] == "load":
+                N[i] = k[i] * d[i]
+            elif phase[i] == "unload":
+                N[i] = ku[i] * (d[i] - dp[i])
+        return N
+
+    def rhs(t, y):
+        r, d, _, u = kin(y)
+        N = normal(d, (1 - e**2) * dmax)
+        Ft = -mu * N * u / np.sqrt(u * u + v_eps**2)
+        ax, ay = Ft.sum() / m, N.sum() / m - g
+        alpha = np.sum(r[:, 0] * N - r[:, 1] * Ft) / I
+        return np.concatenate([[y[2], y[3], ax, ay, y[5], alpha], Ft, N])
+
+    def events_now():
+        """(function, corner, new phase) for every phase change possible from the current phases."""
+        out = []
+
+        def make(i, kind, direction):
+            def fn(t, y):
+                _, d, drate, _ = kin(y)
+                dp = (1 - e**2) * dmax[i]
+                return {"d": d[i], "rate": drate[i], "dp": d[i] - dp, "dmax": d[i] - dmax[i]}[kind]
+
+            fn.terminal, fn.direction = True, direction
+            return fn
+
+        for i in range(4):
+            if phase[i] == "free":
+                out.append((make(i, "d", 1), i, "load"))
+            elif phase[i] == "load":
+                out.append((make(i, "rate", -1), i, "unload"))
+            elif phase[i] == "unload":
+                out.append((make(i, "dp", -1), i, "released"))
+                out.append((make(i, "dmax", 1), i, "load"))
+            else:
+                out.append((make(i, "dp", 1), i, "unload"))
+                out.append((make(i, "d", -1), i, "free"))
+        return out
+
+    t, contacts, start = 0.0, [], [0.0 if p == "load" else None for p in phase]
+
+    def change(i, new, d, t):
+        """Corner i enters phase `new` at time t (penetrations d)."""
+        if phase[i] == "load" and new == "unload":
+            dmax[i] = d[i]
+        if new == "free":
+            dmax[i] = 0.0
+        if new in ("load", "unload") and start[i] is None:
+            start[i] = t
+        if new in ("released", "free") and start[i] is not None:
+            contacts.append((i, start[i], t))
+            start[i] = None
+        phase[i] = new
+
+    separated = False
+    for _ in range(200):
+        evs = events_now()
+        sol = solve_ivp(rhs, (t, t_max), y, method="DOP853", rtol=rtol, atol=rtol * scale,
+                        events=[ev[0] for ev in evs])
+        if sol.status != 1:  # reached t_max
+            t, y = sol.t[-1], sol.y[:, -1]
+            break
+        hits = [(sol.t_events[j][0], j) for j in range(len(evs)) if len(sol.t_events[j])]
+        t_ev, j = min(hits)
+        t, y = t_ev, sol.y_events[j][0]
+        _, d, drate, _ = kin(y)
+        change(evs[j][1], evs[j][2], d, t)
+        # Other corners whose change falls at the same instant (a flat landing's two corners, to round-off): an
+        # event function that starts at zero would not be seen to cross it.
+        tol_d, tol_v = 1e-9 * L, 1e-9 * V
+        for i in range(4):
+            dp = (1 - e**2) * dmax[i]
+            if phase[i] == "load" and drate[i] <= tol_v:
+                change(i, "unload", d, t)
+            elif phase[i] == "unload" and d[i] - dp <= tol_d and drate[i] < 0:
+                change(i, "released", d, t)
+            elif phase[i] == "released" and d[i] <= tol_d and drate[i] < 0:
+                change(i, "free", d, t)
+            elif phase[i] == "free" and d[i] >= -tol_d and drate[i] > 0:
+                change(i, "load", d, t)
+        if all(p in ("free", "released") for p in phase) and all(d[i] < 0 or drate[i] < 0 for i in range(4)):
+            separated = True
+            break
+    P = np.stack([y[6:10], y[10:14]], axis=1)
+    return dict(P=P, dv_G=P.sum(axis=0) / m, dw=y[5] - w, t_end=t, separated=separated, contacts=contacts)

@@ -43,6 +43,7 @@ class Flag(enum.IntFlag):
     MOUNTS_COINCIDE = 2097152  # two of a plate's mounts closer than `mount_radius`: the model cannot tell them apart
     GAUGE_OUTSIDE = 4194304  # a strain gauge off the plate, inside a mount's disc, or not finite
     OUTSIDE_THEORY = 8388608  # a plate too thick for thin-plate theory, or deflecting beyond small rotations
+    NOT_SEPARATED = 16777216  # a compliant landing still in contact at its time bound
 
     @classmethod
     def describe(cls, flags) -> list[str]:

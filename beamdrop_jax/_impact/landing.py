@@ -1,0 +1,461 @@
+"""Compliant landing of the planar housing: every corner that reaches the ground carries a hysteretic spring and
+regularised Coulomb friction, and the housing's rigid motion is integrated through the whole landing, all
+contacts at once (DESIGN.md section 7). Where one corner strikes alone it reproduces the rigid law's impulse as the
+contact duration goes to 0; where corners strike together (near-flat landings) it gives the one answer that the
+contact's duration selects, and its limit as the angle goes to 0 is the flat landing.
+
+**State.** The centre of mass G = (x, y) and its velocity, the orientation theta (body axes e1 = (cos, sin),
+e2 = (-sin, cos)) and the spin w; per corner its penetration d, the largest penetration d_max of its current
+contact, and the impulse (Pt, Pn) it has received. The integration starts at the first touch: the lowest corner at
+y = 0 with the pre-impact velocity (x = 0 there). Gravity g (default `GRAVITY` = 9.80665 m/s^2) acts throughout.
+
+**Normal force.** Corner i at c_i = G + R(theta) q_i (q_i = (+-W/2, +-H/2)) has height y_i and penetration
+d = -y_i. Its normal force is a hysteretic linear spring, continuous in time (no force jump at first touch):
+- loading (d = d_max growing): N = k d;
+- unloading, and reloading below d_max: N = k d_max (d - d_p) / (d_max - d_p) = (k / e^2)(d - d_p) with
+  d_p = d_max (1 - e^2), so the unloading stiffness is k / e^2 and the returned energy is e^2 of the stored one;
+- N = 0 below d_p. All three: N = max(0, k (d - (1 / e^2 - 1) max(d_max - d, 0))).
+Per corner k = m_eff w1^2 with w1 = pi (1 + e) / (2 tau), tau = `contact.duration`, e = `contact.restitution`,
+and m_eff = 1 / B2 the corner's effective mass in the normal direction, B2 = 1/m + x^2 / I_G with
+r = G - c_i = (x, y) **at the first-touch configuration**: a constant per corner for the whole landing (the body
+turns by O(w tau) during a contact, so this is exact to first order in tau). A single frictionless corner strike,
+the turn neglected, is then a quarter sine at w1 and one at w2 = w1 / e: it lasts exactly tau (e = 1: the half-sine
+of duration tau), leaves the rebound velocity e v0 and the impulse (1 + e) m_eff v0 (with gravity too, the normal
+rebound when the force ends is e v0 exactly: the spring returns e^2 of the work stored, gravity's work cancels).
+d_max is reset when the corner leaves the ground: above the ground a contact's memory d_max - d decays as
+exp(-300 t / tau), below 1e-12 of itself within 0.1 tau (the event-driven reference resets it at y = 0 exactly).
+Above the ground the spring never acts, so a returning corner starts a fresh contact. Restitution below
+`E_MIN` = 0.01 is computed as 0.01 (the unloading stiffness k / e^2 must stay finite; the rebound is then 1 % of
+the approach instead of none).
+
+**Friction.** Regularised Coulomb: F_t = -mu N u_t / sqrt(u_t^2 + v_eps^2), u_t the corner's horizontal velocity,
+`v_eps` a small speed (default 1e-3 V, V = sqrt(|v_G|^2 + (w R)^2) the impact's speed scale, R half the housing's
+diagonal). It is Coulomb's law where |u_t| >> v_eps; a sticking corner creeps at |u_t| ~ v_eps |F_t| / (mu N).
+As tau and v_eps go to 0 a single corner strike tends to the rigid Darboux-Keller impact with Stronge's energetic
+restitution (the spring returns e^2 of the compression's normal work): `routh_impulse(..., law="stronge")`, with
+errors O(tau) and O(v_eps / V).
+
+**Equations.** m dv_G/dt = sum_i (Ft_i, N_i) - m g y-hat; I_G dw/dt = sum_i (c_i - G) x (Ft_i, N_i);
+dd_i/dt = -(vertical velocity of c_i); dd_max/dt = d' while the corner loads (d >= d_max - nu, nu = 1e-12 L, and
+d' > 0) and while it is above the ground (d < 0: d_max follows d, so a contact starts with d_max = d and no switch;
+a memory d_max - d > nu left from a contact relaxes at 300 / tau), else 0; dP_i/dt = (Ft_i, N_i). The penetration
+is a state of its own, rather than computed from G and theta, so that d and d_max integrate the very same rate
+while loading: their difference holds to round-off and the loading test cannot flip on the solver's error (which it
+does when d comes from the positions, costing hundreds of rejected steps per contact). Two more states per corner,
+its time in contact and its time loading, have rates that jump where a contact starts, turns from loading to
+unloading (the force's second derivative jumps there) or ends: the step controller then closes in on those kinks
+instead of stepping across them, which would cost accuracy (5e-8 of the rebound) and derivatives (percents).
+
+**Integration.** diffrax `Tsit5` (explicit Runge-Kutta, order 5 with an embedded 4) with a PID step-size controller,
+in nondimensional variables (time / tau, velocities / V, lengths / L), default tolerances 1e-10. The right-hand
+side is smooth between events (a contact starts, turns, releases or reloads) and kinked at them; an explicit
+method crosses each kink with a few rejected steps, while an implicit one (Kvaerno5, tried) has its Newton
+iterations straddle the kinks: 20 times the steps on a frictionless corner, 3 to 4 times the run time on frictional
+batches. The stiff part is the friction of a sticking corner, whose slip relaxes at Lambda = mu N m B1 / v_eps per
+unit mass (m B1 = 1 + m y^2 / I_G), thousands per tau at the default v_eps. An explicit method's steps must stay
+below about 3 / Lambda; its error control keeps the solution stable there, but not the derivatives that reverse
+mode carries through the same steps, which grew to 1e28 in a sticking landing. So the solve runs in a warped time
+sigma, dt/dsigma = 1 / (1 + Lambda / lambda0) (lambda0 = 20 / tau; the memory's relaxation counts in Lambda too),
+where no rate exceeds lambda0, with steps dsigma <= 2.5 / lambda0: stable for the solution and its derivatives, at
+about 2 / Lambda of physical time per step while sticking (some 1000 steps per tau at the default v_eps; a sliding
+or frictionless corner needs about 100). The physical time is the state's last entry; the dense solution is read at
+a physical time by bisection in sigma. A smaller v_eps needs `max_steps` to match. The solve stops (a diffrax
+`Event`, at the end of the step where it holds) when the landing is over: no corner carries force and every corner
+still below the ground moves up. A corner above the ground that still approaches it then is a later impact
+(clattering), not part of this landing. The time bound `t_max` (default 10 tau) ends a landing that does not
+separate (a near-plastic contact pivoting under gravity, say): `Flag.NOT_SEPARATED`. `throw=False`: a failed solve
+(the step limit) is `Flag.SOLVER_FAILED`, never an exception under `jit`.
+
+No Python control flow on traced values: the result is differentiable in the orientation, velocities, spin and the
+contact's and housing's fields (reverse mode through diffrax's `RecursiveCheckpointAdjoint`), and `vmap`s.
+"""
+
+import math
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+
+from .._common.checks import GRAVITY, Flag, as_float, combine, flag_if, is_concrete
+from .._common.compile import filter_jit
+from .._common.report import plain, summary_text
+
+E_MIN = 0.01
+"""Restitution floor of the compliant contact (the unloading stiffness is k / e^2)."""
+
+_NU = 1e-12  # margin of the loading test d >= d_max - nu, in units of L
+_FORGET_RATE = 300.0  # r: above the ground a contact's memory d_max - d decays as exp(-r t / tau)
+_LAMBDA0 = 20.0  # the stiffest rate (per tau) the explicit solver meets in the warped time sigma
+_T = 30  # where the state holds the physical time
+_SIGMA_BOUND = 1e9  # the warped time's bound: the solve ends at separation, `t_max` or `max_steps` first
+_DSIGMA_MAX = 0.125  # its largest step: lambda0 dsigma = 2.5, inside Tsit5's stability interval (-3.3, 0]
+
+
+def housing_corners(width, height) -> Float[Array, "4 2"]:
+    """Body coordinates (q1, q2) from G of the four corners: (+W/2, +H/2), (-W/2, +H/2), (-W/2, -H/2),
+    (+W/2, -H/2)."""
+    w, h = width / 2, height / 2
+    return jnp.stack([jnp.stack([w, h]), jnp.stack([-w, h]), jnp.stack([-w, -h]), jnp.stack([w, -h])])
+
+
+def _rotate(v, c, s):
+    """Rotate vectors v (..., 2) by the angle with cosine c and sine s."""
+    return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], axis=-1)
+
+
+def _cross_z(v):
+    """z x v for vectors v (..., 2)."""
+    return jnp.stack([-v[..., 1], v[..., 0]], axis=-1)
+
+
+class _Model(eqx.Module):
+    """The landing's equations in nondimensional form (time / T, velocities / V, lengths / L = V T; the angle
+    change as R (theta - theta0) / L; impulses / (m V)). The state: G's displacement (2), v_G (2), the angle
+    change, the spin w R / V, then per corner (4 each) d, d_max, Pt, Pn, time in contact, time loading, and last
+    the physical time."""
+
+    # scales
+    T: Array  # tau, s
+    V: Array  # speed scale, m/s
+    R: Array  # half the housing's diagonal, m
+    mass: Array
+    inertia: Array
+    theta0: Array
+    y0: Array  # height of G at first touch, m
+    # nondimensional parameters
+    o0: Array  # (4, 2) corners from G in the ground frame at first touch / R
+    h0: Array  # (4,) corner heights at first touch / L (the lowest: 0)
+    kappa: Array  # (4,) k_i T^2 / m
+    e: Array
+    mu: Array
+    eps: Array  # v_eps / V
+    g: Array  # g T / V
+    mR2_I: Array  # m R^2 / I_G
+    L_R: Array  # L / R
+
+    def corner_state(self, y):
+        """Corner offsets from G / R (4, 2), penetrations d / L (4,), their rates d' / V (4,), horizontal corner
+        velocities / V (4,), all from the state vector y."""
+        angle = y[4] * self.L_R
+        o = _rotate(self.o0, jnp.cos(angle), jnp.sin(angle))
+        vel = y[2:4] + y[5] * _cross_z(o)
+        return o, y[6:10], -vel[:, 1], vel[:, 0]
+
+    def forces(self, y):
+        """(Ft, N) per corner (4, 2) in units of m V / T, corner offsets / R, penetrations, their rates, and the
+        corners' horizontal velocities."""
+        o, d, d_rate, u_t = self.corner_state(y)
+        dmax = y[10:14]
+        # k d on the loading line (d >= d_max), (k / e^2)(d - d_p) = k (d - (1 / e^2 - 1)(d_max - d)) below it.
+        # (`where`, not `maximum`: at d = d_max, the loading line, the derivative must be the loading line's.)
+        below = jnp.where(dmax > d, dmax - d, 0.0)
+        N = jnp.maximum(0.0, self.kappa * (d - (1.0 / self.e**2 - 1.0) * below))
+        Ft = -self.mu * N * u_t / jnp.sqrt(u_t**2 + self.eps**2)
+        return jnp.stack([Ft, N], axis=-1), o, d, d_rate, u_t
+
+    def rhs(self, sigma, y, args=None):
+        """dy/dsigma: the equations in physical time (nondimensional t / T, the state's last entry), times the
+        warp dt/dsigma."""
+        F, o, d, d_rate, u_t = self.forces(y)
+        dmax = y[10:14]
+        a = jnp.sum(F, axis=0) - jnp.stack([jnp.zeros_like(self.g), self.g])
+        alpha = self.mR2_I * jnp.sum(o[:, 0] * F[:, 1] - o[:, 1] * F[:, 0])
+        # d_max follows d while the corner loads and while it is above the ground (so a contact starts with
+        # d_max = d, with no switch); the margin nu keeps round-off from flipping the test. Above the ground a
+        # memory left from a contact relaxes onto d at the rate r.
+        follow = (d >= dmax - _NU) & ((d_rate > 0.0) | (d < 0.0))
+        forget = (d < 0.0) & (dmax > d + _NU)
+        ddmax = jnp.where(follow | forget, d_rate, 0.0) - jnp.where(forget, _FORGET_RATE * (dmax - d), 0.0)
+        # Each corner's time in contact and time loading: their rates jump where a contact starts, turns from
+        # loading to unloading (the force's second derivative jumps there) or ends, so the step controller closes
+        # in on those kinks instead of stepping across them (which costs accuracy and spoils derivatives).
+        in_contact = jnp.where(F[:, 1] > 0.0, 1.0, 0.0)
+        compressing = jnp.where(follow & (d > 0.0), 1.0, 0.0)
+        rate = jnp.concatenate([y[2:4], a, y[5:6], alpha[None], d_rate, ddmax, F[:, 0], F[:, 1], in_contact,
+                                compressing, jnp.ones(1)])
+        return rate * self.warp(F[:, 1], o, u_t, forget)
+
+    def warp(self, N, o, u_t, forget):
+        """dt/dsigma = 1 / (1 + Lambda / lambda0), Lambda the stiff rates: a sticking corner's slip relaxes at
+        mu N m B1 / v_eps (times v_eps^3 / (u_t^2 + v_eps^2)^(3/2), 1 at u_t = 0: sliding is not stiff), m B1 =
+        1 + m y^2 / I_G; a memory being forgotten at r."""
+        slip = self.eps**2 / (u_t**2 + self.eps**2)
+        stiff = self.mu * N * (1.0 + self.mR2_I * o[:, 1] ** 2) * slip * jax.lax.rsqrt(u_t**2 + self.eps**2)
+        Lambda = jnp.sum(stiff) + _FORGET_RATE * jnp.sum(jnp.where(forget, 1.0, 0.0))
+        return 1.0 / (1.0 + Lambda / _LAMBDA0)
+
+    def separated(self, y):
+        """No corner carries force and every corner below the ground moves up."""
+        F, _, d, d_rate, _ = self.forces(y)
+        return jnp.all(F[:, 1] <= 0.0) & jnp.all((d < 0.0) | (d_rate < 0.0))
+
+    def dimensional(self, y):
+        """(G (2,), v_G (2,), theta, w) in SI units from the state vector."""
+        L = self.V * self.T
+        G = jnp.stack([y[0] * L, self.y0 + y[1] * L])
+        return G, y[2:4] * self.V, self.theta0 + y[4] * L / self.R, y[5] * self.V / self.R
+
+
+class Landing(eqx.Module):
+    """A compliant landing (`compliant_landing`).
+
+    - `P`: impulse (Pt, Pn) each corner received, (4, 2), N s; corners in the order of `corners`.
+    - `corners`: the corners' body coordinates (q1, q2) from G, (4, 2), m.
+    - `dv_G`: velocity jump of G from the contact forces, sum(P) / m, m/s (gravity's g t_end is not in it: G's
+      velocity at `t_end` is v0 + dv_G - (0, g t_end)). `dw`: spin jump, rad/s (gravity has no moment about G).
+    - `t_end`: when the solve stopped (the end of the step in which the housing separated), s from first touch.
+    - `contact_time`: how long each corner carried force, (4,), s (a single frictionless strike: tau).
+      `loading_time`: how long each corner was on its loading line (d = d_max growing), (4,), s.
+    - `energy_change`: kinetic plus potential energy at `t_end` minus before, J (<= 0).
+    - `separated`: whether the landing ended by separation before `t_max`. `steps`: accepted solver steps.
+    - `flags`: `Flag` mask: SOLVER_FAILED, NOT_SEPARATED, SEPARATING_CONTACT (no corner approaches the ground at
+      first touch), NONFINITE_RESULT and the inputs' range flags.
+
+    Methods (t in s from first touch; before 0 and after `t_end` the housing flies freely): `velocity(t)`,
+    `forces(t)`, `point_velocity(t, q)`, `point_acceleration(t, q)`.
+    """
+
+    P: Float[Array, "4 2"]
+    corners: Float[Array, "4 2"]
+    dv_G: Float[Array, "2"]
+    dw: Float[Array, ""]
+    t_end: Float[Array, ""]
+    contact_time: Float[Array, " 4"]
+    loading_time: Float[Array, " 4"]
+    energy_change: Float[Array, ""]
+    separated: Bool[Array, ""]
+    steps: Int[Array, ""]
+    flags: Int[Array, ""]
+    model: _Model
+    solution: diffrax.Solution
+    v0: Float[Array, "2"]
+    w0: Float[Array, ""]
+    end_state: Float[Array, " 31"]
+    gravity: Float[Array, ""]
+
+    def summary(self) -> dict:
+        """The landing's numbers, units in the keys (JSON-ready; `repr` prints them)."""
+        if jnp.ndim(self.t_end):
+            raise ValueError("Landing.summary() needs one landing (index a batched one first)")
+        return plain({
+            "corner_impulses_Ns": self.P,
+            "velocity_jump_m_per_s": self.dv_G,
+            "spin_jump_rad_per_s": self.dw,
+            "contact_times_ms": 1e3 * self.contact_time,
+            "end_time_ms": 1e3 * self.t_end,
+            "energy_change_J": self.energy_change,
+            "solver_steps": self.steps,
+            "flags": Flag.describe(self.flags),
+        })
+
+    def __repr__(self) -> str:
+        try:
+            return summary_text(self.summary(), "Landing")
+        except (ValueError, TypeError, jax.errors.ConcretizationTypeError):
+            return f"Landing(P.shape={tuple(jnp.shape(self.P))})"
+
+    def _state(self, t):
+        """Nondimensional state at t (s), held at its ends outside [0, t_end]: the warped time sigma where the
+        dense solution's physical time is t, by bisection (it grows monotonically with sigma)."""
+        target = jnp.clip(t, 0.0, self.t_end) / self.model.T
+
+        def halve(_, bounds):
+            lo, hi = bounds
+            mid = 0.5 * (lo + hi)
+            early = self.solution.evaluate(mid)[_T] < target
+            return jnp.where(early, mid, lo), jnp.where(early, hi, mid)
+
+        lo, hi = jax.lax.fori_loop(0, 60, halve, (self.solution.t0, self.solution.ts[-1]))
+        return self.solution.evaluate(0.5 * (lo + hi))
+
+    def _rigid(self, t):
+        """(v_G, theta, w, a_G, alpha, corner forces / (m V / T)) at scalar time t, SI."""
+        m = self.model
+        y = self._state(t)
+        _, v, theta, w = m.dimensional(y)
+        F, o, _, _, _ = m.forces(y)
+        inside = (t >= 0.0) & (t <= self.t_end)
+        F = jnp.where(inside, F, 0.0)
+        scale = m.V / m.T  # acceleration unit
+        a = jnp.sum(F, axis=0) * scale - jnp.stack([jnp.zeros_like(self.gravity), self.gravity])
+        alpha = m.mR2_I * jnp.sum(o[:, 0] * F[:, 1] - o[:, 1] * F[:, 0]) * scale / m.R
+        # Free flight before the touch and after the end: v changes by gravity only, the spin not at all.
+        before = t < 0.0
+        after = t > self.t_end
+        v = jnp.where(before, self.v0 + jnp.stack([0.0 * t, -self.gravity * t]), v)
+        v = jnp.where(after, v + jnp.stack([0.0 * t, -self.gravity * (t - self.t_end)]), v)
+        w = jnp.where(before, self.w0, w)
+        theta = theta + w * (jnp.minimum(t, 0.0) + jnp.maximum(t - self.t_end, 0.0))
+        return v, theta, w, a, alpha, F
+
+    def velocity(self, t) -> Float[Array, "... 3"]:
+        """(vx, vy, w) of G at time(s) t (s from first touch): m/s and rad/s."""
+        def one(t):
+            v, _, w, _, _, _ = self._rigid(t)
+            return jnp.concatenate([v, w[None]])
+
+        return _over_times(one, t)
+
+    def forces(self, t) -> Float[Array, "... 4 2"]:
+        """Contact force (Ft, N) on each corner at time(s) t, N."""
+        m = self.model
+
+        def one(t):
+            return self._rigid(t)[5] * m.mass * m.V / m.T
+
+        return _over_times(one, t)
+
+    def point_velocity(self, t, q) -> Float[Array, "... 2"]:
+        """Velocity (ground frame, m/s) at time(s) t of housing points at body coordinates q = (q1, q2) from G
+        (shape (..., 2)): v_G + w z x r. The result has shape t.shape + q.shape."""
+        q = jnp.asarray(q)
+
+        def one(t):
+            v, theta, w, _, _, _ = self._rigid(t)
+            r = _rotate(q, jnp.cos(theta), jnp.sin(theta))
+            return v + w[..., None] * _cross_z(r)
+
+        return _over_times(one, t)
+
+    def point_acceleration(self, t, q) -> Float[Array, "... 2"]:
+        """Acceleration (ground frame, m/s^2, gravity included) at time(s) t of housing points at body coordinates
+        q = (q1, q2) from G: a_G + alpha z x r - w^2 r, r = R(theta(t)) q, from the dense solution's state and the
+        contact forces there. The result has shape t.shape + q.shape."""
+        q = jnp.asarray(q)
+
+        def one(t):
+            _, theta, w, a, alpha, _ = self._rigid(t)
+            r = _rotate(q, jnp.cos(theta), jnp.sin(theta))
+            return a + alpha * _cross_z(r) - w**2 * r
+
+        return _over_times(one, t)
+
+
+def _over_times(fn, t):
+    t = jnp.asarray(t, dtype=jnp.result_type(float))
+    if t.ndim == 0:
+        return fn(t)
+    out = jax.vmap(fn)(t.reshape(-1))
+    return out.reshape(t.shape + out.shape[1:])
+
+
+def compliant_landing(
+    housing,
+    contact,
+    orientation,
+    velocity,
+    spin,
+    *,
+    v_eps=None,
+    gravity=GRAVITY,
+    t_max=None,
+    rtol: float = 1e-10,
+    atol: float = 1e-10,
+    max_steps: int = 4096,
+) -> Landing:
+    """Compliant landing of `housing` (a `Housing`) on the ground with `contact` (a `Contact`: friction mu,
+    restitution e, duration tau > 0), from the first touch: the lowest corner at y = 0, the housing at
+    `orientation` theta (rad), G moving at `velocity` (vx, vy) (m/s) and spinning at `spin` w (rad/s). The model is
+    in this module's docstring.
+
+    **Keywords:** `v_eps`: the friction's regularising speed (m/s; default 1e-3 V, V = sqrt(|v|^2 + (w R)^2)).
+    `gravity` (m/s^2; 0 isolates the contact). `t_max`: time bound (s; default 10 tau). `rtol`, `atol`: the step
+    controller's tolerances on the nondimensional state (static). `max_steps`: solver step limit (static).
+
+    **Returns:** a `Landing`. Traceable: under `jit`, `vmap` and `grad` problems come back as `flags`.
+    """
+    h = housing
+    args = [as_float(v, name) for v, name in (
+        (h.width, "housing.width"), (h.height, "housing.height"), (h.mass, "housing.mass"),
+        (h.inertia, "housing.inertia"), (contact.friction, "contact.friction"),
+        (contact.restitution, "contact.restitution"), (contact.duration, "contact.duration"),
+        (orientation, "orientation"), (velocity, "velocity"), (spin, "spin"), (gravity, "gravity"))]
+    v_eps = jnp.asarray(jnp.nan) if v_eps is None else as_float(v_eps, "v_eps")  # NaN: the default
+    t_max = jnp.asarray(jnp.nan) if t_max is None else as_float(t_max, "t_max")
+    if args[8].shape != (2,):
+        raise ValueError(f"velocity must be a pair (vx, vy), m/s; got shape {args[8].shape}")
+    if is_concrete(args, v_eps, t_max):
+        _check_eagerly(*args, v_eps, t_max)
+        return _landing_program(*args, v_eps, t_max, rtol=rtol, atol=atol, max_steps=max_steps)
+    return _landing(*args, v_eps, t_max, rtol=rtol, atol=atol, max_steps=max_steps)
+
+
+def _check_eagerly(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps, t_max):
+    if not float(tau) > 0:
+        raise ValueError(f"contact.duration = {float(tau):g} s: the compliant landing needs a duration > 0 "
+                         "(0 is the ideal impulse of the rigid law: corner_impact)")
+    if not np.all(np.isfinite(np.concatenate([np.ravel(np.asarray(x)) for x in (theta, v, w, g)]))):
+        raise ValueError("orientation, velocity, spin and gravity must be finite")
+    if not (np.isnan(v_eps) or float(v_eps) > 0):
+        raise ValueError(f"v_eps = {float(v_eps):g} m/s: the friction's regularising speed must be > 0")
+    if not (np.isnan(t_max) or float(t_max) > 0):
+        raise ValueError(f"t_max = {float(t_max):g} s must be > 0")
+
+
+def _model(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps) -> _Model:
+    R = 0.5 * jnp.sqrt(W**2 + H**2)
+    speed2 = v[0] ** 2 + v[1] ** 2 + (w * R) ** 2
+    V = jnp.sqrt(jnp.where(speed2 > 0, speed2, 1.0))
+    T = jnp.where(tau > 0, tau, 1.0)
+    L = V * T
+    # The default (NaN) is picked before any arithmetic: a NaN in an untaken branch would poison gradients.
+    eps = jnp.where(jnp.isnan(v_eps), 1e-3 * V, v_eps) / V
+    q = housing_corners(W, H)
+    o0 = _rotate(q, jnp.cos(theta), jnp.sin(theta))  # corners from G in the ground frame, m
+    y0 = -jnp.min(o0[:, 1])
+    h0 = y0 + o0[:, 1]
+    e_used = jnp.clip(e, E_MIN, 1.0)
+    w1 = math.pi * (1.0 + e_used) / 2.0  # w1 T
+    B2 = 1.0 / m + o0[:, 0] ** 2 / I  # x = (G - corner)_x = -o_x
+    kappa = w1**2 / (m * B2)  # k_i T^2 / m = (m_eff / m) (w1 T)^2
+    return _Model(T=T, V=V, R=R, mass=m, inertia=I, theta0=theta, y0=y0, o0=o0 / R, h0=h0 / L, kappa=kappa,
+                  e=e_used, mu=mu, eps=eps, g=g * T / V, mR2_I=m * R**2 / I, L_R=L / R)
+
+
+def _landing(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps, t_max, *, rtol, atol, max_steps) -> Landing:
+    model = _model(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps)
+    # d = d_max = minus the corners' heights (no corner has a memory yet); the physical time last.
+    y_init = jnp.concatenate([jnp.zeros(2), v / model.V, jnp.zeros(1), (w * model.R / model.V)[None], -model.h0,
+                              -model.h0, jnp.zeros(17)])
+    t_bound = jnp.where(jnp.isnan(t_max), 10.0 * model.T, t_max) / model.T
+    controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=0.3, icoeff=0.3, dtmax=_DSIGMA_MAX)
+    event = diffrax.Event(lambda sigma, y, args, **kw: model.separated(y) | (y[_T] >= t_bound))
+    sol = diffrax.diffeqsolve(
+        diffrax.ODETerm(model.rhs), diffrax.Tsit5(), 0.0, _SIGMA_BOUND, None, y_init,
+        saveat=diffrax.SaveAt(t1=True, dense=True), stepsize_controller=controller, event=event,
+        max_steps=max_steps, throw=False,
+    )
+    y_end = sol.ys[-1]
+    failed = sol.result != diffrax.RESULTS.event_occurred
+    separated = ~failed & model.separated(y_end)
+    P = jnp.stack([y_end[14:18], y_end[18:22]], axis=-1) * m * model.V
+    dv_G = jnp.sum(P, axis=0) / m
+    _, v_end, _, w_end = model.dimensional(y_end)
+    t_end = y_end[_T] * model.T
+    G_rise = y_end[1] * model.V * model.T
+    energy = (0.5 * m * (v_end @ v_end - v @ v) + 0.5 * I * (w_end**2 - w**2) + m * g * G_rise)
+    _, d0, d_rate0, _ = model.corner_state(y_init)
+    approaching = jnp.any((d0 >= 0.0) & (d_rate0 > 0.0))
+    finite = jnp.all(jnp.isfinite(y_end))
+    flags = combine(
+        flag_if(failed, Flag.SOLVER_FAILED),
+        flag_if(~separated & ~failed, Flag.NOT_SEPARATED),
+        flag_if(~approaching, Flag.SEPARATING_CONTACT),
+        flag_if(~finite, Flag.NONFINITE_RESULT),
+        flag_if(~(tau > 0), Flag.DURATION_NEGATIVE),
+        flag_if(~((e >= 0) & (e <= 1)), Flag.RESTITUTION_RANGE),
+        flag_if(~(mu >= 0), Flag.FRICTION_NEGATIVE),
+        flag_if(~jnp.all(jnp.isfinite(jnp.stack([theta, v[0], v[1], w, g]))), Flag.NONFINITE_INPUT),
+    )
+    return Landing(
+        P=P, corners=housing_corners(W, H), dv_G=dv_G, dw=w_end - w, t_end=t_end,
+        contact_time=y_end[22:26] * model.T, loading_time=y_end[26:30] * model.T, energy_change=energy,
+        separated=separated, steps=sol.stats["num_accepted_steps"], flags=flags, model=model, solution=sol,
+        v0=v, w0=w, end_state=y_end, gravity=g,
+    )
+
+
+_landing_program = filter_jit(_landing)
