@@ -115,6 +115,8 @@ from ._plots import (
     plot_bench as plot_bench,
     plot_campaign as plot_campaign,
     plot_impact as plot_impact,
+    plot_flat_landing as plot_flat_landing,
+    plot_housing_impact as plot_housing_impact,
     plot_impacts as plot_impacts,
     plot_scene as plot_scene,
     plot_montecarlo as plot_montecarlo,

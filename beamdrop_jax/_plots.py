@@ -42,17 +42,68 @@ def plot_impact(B, v0, friction, restitution, law: str = "poisson", *, ax=None, 
     ax.plot(pt, (B3 * pt - C0) / B2, "--", color="tab:blue", label="max compression C = 0")
     ax.axhline(P[1], color="tab:red", lw=0.8, ls=":", label=f"termination ({law})")
     ax.plot(path[:, 0], path[:, 1], "-o", color="k", ms=4, lw=2, label="impulse path")
-    ax.plot([P[0]], [P[1]], "*", color="tab:red", ms=12)
     pn_c = float(res.Pn_compression)
     ax.plot([np.interp(pn_c, path[:, 1], path[:, 0])], [pn_c], "D", color="tab:blue", ms=6, label="max compression")
+    ax.plot([P[0]], [P[1]], "*", color="tab:red", ms=12, label="final impulse P")
     ax.set_xlim(-span, span)
     ax.set_ylim(0.0, top)
     ax.set_xlabel("tangential impulse $P_t$ (N s)")
     ax.set_ylabel("normal impulse $P_n$ (N s)")
     mode = ImpactMode(int(res.mode)).label
     ax.set_title(title or f"Impact process: {mode}; P = ({P[0]:.4g}, {P[1]:.4g}) N s")
-    ax.legend(loc="lower left", fontsize=8)
+    _legend_below(ax, ncol=3)
     return fig
+
+
+def _legend_below(ax, ncol=3, **kw):
+    """The legend under the axes and their x label (a fixed distance, whatever the axes' height), where it covers
+    nothing drawn."""
+    from matplotlib.transforms import ScaledTranslation
+
+    below = ax.transAxes + ScaledTranslation(0.0, -0.5, ax.figure.dpi_scale_trans)
+    return ax.legend(loc="upper center", bbox_to_anchor=(0.5, 0.0), bbox_transform=below, fontsize=8, ncol=ncol,
+                     **kw)
+
+
+def _flat_face(orientation) -> int:
+    """The face (ISTA numbering: 1 top +e2, 2 right +e1, 3 bottom -e2, 4 left -e1) that lands flat at
+    orientation k x 90 deg."""
+    return {0: 3, 1: 4, 2: 1, 3: 2}[round(float(orientation) / (np.pi / 2)) % 4]
+
+
+def plot_flat_landing(hit, scene, *, ax=None, title: str | None = None):
+    """A flat landing in the impulse plane: the housing lands on a face, both its corners at once, and translates;
+    the impulse the drop uses (`hit.impact.P`, both corners' total) is normal, (1 + e) times the momentum, and
+    friction plays no part (no tangential velocity)."""
+    fig, ax = _axes(ax)
+    P = np.asarray(hit.impact.P, float)
+    e = float(scene.contact.restitution)
+    pn = float(P[1])
+    top = 1.25 * max(pn, 1e-12)
+    ax.axhline(pn, color="tab:red", lw=0.8, ls=":", label="termination: (1 + e) m v")
+    ax.plot([0.0, P[0]], [0.0, pn], "-", color="k", lw=2, label="impulse path (straight up)")
+    ax.plot([P[0]], [pn], "*", color="tab:red", ms=12, label="final impulse P (both corners)")
+    ax.plot([0.0], [pn / (1.0 + e)], "D", color="tab:blue", ms=6, label="max compression: m v")  # on P when e = 0
+    ax.set_xlim(-0.5 * top, 0.5 * top)
+    ax.set_ylim(0.0, top)
+    ax.set_xlabel("tangential impulse $P_t$ (N s)")
+    ax.set_ylabel("normal impulse $P_n$ (N s)")
+    ax.text(0.02, 0.97, f"e = {e:g}; no tangential velocity: friction plays no part", transform=ax.transAxes,
+            fontsize=8, color="0.35", va="top")
+    face = _flat_face(scene.drop.orientation)
+    ax.set_title(title or f"Flat landing on face {face} (translation); P = ({P[0]:.4g}, {pn:.4g}) N s", fontsize=11)
+    _legend_below(ax, ncol=2)
+    return fig
+
+
+def plot_housing_impact(scene, hit=None, law: str = "poisson", *, ax=None, title: str | None = None):
+    """The housing's first impact as the drop uses it: the Routh diagram of a corner impact (`plot_impact`), or
+    for a flat landing the translation answer (`plot_flat_landing`). `hit`: a `HousingImpact` (default computed
+    with `law`)."""
+    hit = housing_impact(scene, law=law) if hit is None else hit
+    if bool(hit.flat):
+        return plot_flat_landing(hit, scene, ax=ax, title=title)
+    return plot_impact(hit.B, hit.v0, scene.contact.friction, scene.contact.restitution, law=law, ax=ax, title=title)
 
 
 def plot_stress_map(fields, response, *, ax=None):
@@ -133,64 +184,86 @@ def plot_deflected_board(fields, response, *, thickness=None, ax=None):
 
 def plot_scene(scene, response=None, *, ax=None):
     """The scene at the instant of impact, in the plane of the model: the housing (its width and height; the
-    device's third dimension and the board's width point out of the page) with its lowest corner S on the ground,
-    the centre of mass G, the board from end A to end B with its supports, the velocity of G before impact and the
-    ground's impulse at S (from `response`, or computed)."""
+    device's third dimension and the board's width point out of the page) with its lowest corner S on the ground
+    (a flat landing: the whole face, both corners striking), the centre of mass G, the board from end A to end B
+    with its supports, the velocity of G before impact and the ground's impulse (from `response`, or computed).
+    Arrows give directions; their values are in their labels."""
     from matplotlib.patches import Polygon
 
-
-    fig, ax = _axes(ax, (8.0, 5.2))
     th = float(scene.drop.orientation)
     e1, e2 = body_axes(th)
     W, H = float(scene.housing.width), float(scene.housing.height)
     hit = response.housing if response is not None and response.housing is not None else housing_impact(scene)
-    r = np.asarray(hit.r)
-    G = np.array([0.0, 0.0]) + r  # ground frame with the striking corner S at the origin
+    G = np.asarray(hit.r, float)  # ground frame with the striking corner S at the origin
+    flat = bool(hit.flat)
 
     def ground(q):
         q = np.asarray(q, float)
         return (G + q[..., :1] * e1 + q[..., 1:] * e2) * 1e3
 
     box = ground(np.array([[W / 2, H / 2], [-W / 2, H / 2], [-W / 2, -H / 2], [W / 2, -H / 2]]))
+    size = 1e3 * max(W, H)
+    arrow_mm = 0.25 * size  # every arrow this long: directions, not magnitudes
+    v = np.array([float(scene.drop.horizontal_speed), -float(np.sqrt(2 * 9.80665 * float(scene.drop.height)))])
+    speed = np.linalg.norm(v)
+    G_mm = G * 1e3
+    tail = G_mm - v / speed * arrow_mm if speed > 0 else G_mm  # the velocity arrow ends at G
+    lo_x = min(box[:, 0].min(), 0.0, tail[0]) - 0.08 * size
+    hi_x = max(box[:, 0].max(), 0.0, tail[0]) + 0.08 * size
+    lo_y, hi_y = -0.06 * size, max(box[:, 1].max(), tail[1], arrow_mm) + 0.08 * size
+    if ax is None:  # the figure's shape follows the drawing's: no wide empty margins around a flat housing
+        width = 8.0
+        ax_height = (width - 1.0) * (hi_y - lo_y) / (hi_x - lo_x)
+        fig, ax = _axes(None, (width, float(np.clip(ax_height + 1.7, 3.0, 9.0))))
+    fig = ax.figure
     ax.add_patch(Polygon(box, closed=True, fc="0.93", ec="0.25", lw=1.5, label="housing (rigid)"))
     ends = ground(board_ends(on_host(scene.placement), float(scene.board.length)))
     ax.plot(ends[:, 0], ends[:, 1], color="tab:green", lw=4, solid_capstyle="butt", label="board")
     ax.plot(ends[:, 0], ends[:, 1], "^", color="tab:green", mec="k", ms=10, label="supports (pinned)")
     ax.annotate("A", ends[0], xytext=(-12, 6), textcoords="offset points", fontsize=11, weight="bold")
     ax.annotate("B", ends[1], xytext=(6, 6), textcoords="offset points", fontsize=11, weight="bold")
-    ax.plot(*G * 1e3, "ko", ms=7, mfc="w", mew=2)
-    ax.annotate("G", G * 1e3, xytext=(6, -12), textcoords="offset points", fontsize=11)
-    ax.plot(0, 0, "o", color="tab:red", ms=9)
-    ax.annotate("S (strikes)", (0, 0), xytext=(-70, 6), textcoords="offset points", color="tab:red", fontsize=10)
-    size = 1e3 * max(W, H)
-    lo_x, hi_x = min(box[:, 0].min(), 0) - 0.15 * size, max(box[:, 0].max(), 0) + 0.15 * size
-    ax.fill_between([lo_x, hi_x], [-0.06 * size] * 2, [0, 0], color="0.55", hatch="///", alpha=0.5, lw=0)
-    v = np.array([float(scene.drop.horizontal_speed), -float(np.sqrt(2 * 9.80665 * float(scene.drop.height)))])
-    speed = np.linalg.norm(v)
+    ax.plot(*G_mm, "ko", ms=7, mfc="w", mew=2)
+    ax.annotate("G", G_mm, xytext=(6, -12), textcoords="offset points", fontsize=11)
+    ax.fill_between([lo_x, hi_x], [lo_y] * 2, [0, 0], color="0.55", hatch="///", alpha=0.5, lw=0)
+    P = np.asarray(hit.impact.P, float)
+    if flat:  # both lowest corners strike together: the face lands
+        on_ground = box[np.argsort(box[:, 1])[:2]]
+        on_ground = on_ground[np.argsort(on_ground[:, 0])]
+        face = _flat_face(th)
+        ax.plot(on_ground[:, 0], on_ground[:, 1], "-o", color="tab:red", lw=3, ms=8,
+                label=f"face {face} strikes flat (both corners)")
+        strikes = on_ground
+    else:
+        ax.plot(0, 0, "o", color="tab:red", ms=9, label="S: the corner that strikes")
+        ax.annotate("S (strikes)", (0, 0), xytext=(-8, 6), textcoords="offset points", color="tab:red", fontsize=10,
+                    ha="right")
+        strikes = np.zeros((1, 2))
     if speed > 0:
-        arrow = v / speed * 0.3 * size
-        ax.annotate("", G * 1e3 + arrow, G * 1e3, arrowprops=dict(arrowstyle="-|>", color="tab:blue", lw=2))
-        ax.annotate(f"v_G = {speed:.2f} m/s", G * 1e3 + arrow, xytext=(6, 0), textcoords="offset points",
-                    color="tab:blue", fontsize=9)
-    P = np.asarray(hit.impact.P)
+        ax.annotate("", G_mm, tail, arrowprops=dict(arrowstyle="-|>", color="tab:blue", lw=2))
+        ax.annotate(f"v_G = {speed:.3g} m/s", tail, xytext=(6, 0), textcoords="offset points", color="tab:blue",
+                    fontsize=9, va="center")
     if np.linalg.norm(P) > 0:
-        arrow = P / np.linalg.norm(P) * 0.3 * size
-        ax.annotate("", arrow, (0, 0), arrowprops=dict(arrowstyle="-|>", color="tab:red", lw=2))
-        ax.annotate(f"impulse ({P[0]:.3g}, {P[1]:.3g}) N s", arrow, xytext=(6, 0), textcoords="offset points",
-                    color="tab:red", fontsize=9)
+        for i, at in enumerate(strikes):
+            head = at + P / np.linalg.norm(P) * arrow_mm * (0.6 if flat else 1.0)
+            ax.annotate("", head, at, arrowprops=dict(arrowstyle="-|>", color="tab:red", lw=2))
+        what = "impulse of both corners" if flat else "impulse"
+        inward = head[0] > (lo_x + hi_x) / 2  # the label on the side of the drawing's middle, inside the axes
+        ax.annotate(f"{what} ({P[0]:.3g}, {P[1]:.3g}) N s", head, xytext=(-6 if inward else 6, 4),
+                    textcoords="offset points", color="tab:red", fontsize=9, va="bottom",
+                    ha="right" if inward else "left")
     ax.set_aspect("equal")
     ax.set_xlim(lo_x, hi_x)
-    ax.set_ylim(-0.08 * size, box[:, 1].max() + 0.1 * size)
+    ax.set_ylim(lo_y, hi_y)
     ax.set_xlabel("ground x (mm)")
     ax.set_ylabel("height above ground (mm)")
     ax.set_title(
         f"Housing {W * 1e3:g} x {H * 1e3:g} mm, {float(scene.housing.mass) * 1e3:g} g, dropped "
-        f"{float(scene.drop.height):g} m at {np.degrees(th):.1f} deg; board {float(scene.board.length) * 1e3:g} mm",
+        f"{float(scene.drop.height):.3g} m at {np.degrees(th):.1f} deg; board {float(scene.board.length) * 1e3:g} mm",
         fontsize=10,
     )
-    ax.text(0.01, 0.99, "plane of the model: the housing's width and height;\nthe board bends in this plane, "
-            "its width points out of the page", transform=ax.transAxes, fontsize=7.5, color="0.35", va="top")
-    ax.legend(fontsize=8, loc="upper right")
+    _legend_below(ax, ncol=4, title="plane of the model: the housing's width and height; the board's width points "
+                  "out of the page\narrows give directions, not to scale: their values are in their labels",
+                  title_fontsize=7.5)
     return fig
 
 
@@ -203,11 +276,11 @@ def plot_impacts(scene, response):
     hit = response.housing if response.housing is not None else housing_impact(scene)
     impacts = response.impacts
     count = 1 if impacts is None else int(impacts.count)
-    args = (hit.B, hit.v0, scene.contact.friction, scene.contact.restitution)
     if count == 1:
-        return plot_impact(*args)
+        return plot_housing_impact(scene, hit)
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(13, 4.8), layout="constrained")
-    plot_impact(*args, ax=ax1, title=f"Impact 1 of {count}: {ImpactMode(int(hit.impact.mode)).label}")
+    mode = "flat landing (translation)" if bool(hit.flat) else ImpactMode(int(hit.impact.mode)).label
+    plot_housing_impact(scene, hit, ax=ax1, title=f"Impact 1 of {count}: {mode}")
     t = np.asarray(impacts.t)[:count] * 1e3
     Pn = np.asarray(impacts.P)[:count, 1]
     speed = np.asarray(impacts.approach_speed)[:count]

@@ -545,3 +545,64 @@ def test_an_impossible_n_is_refused_at_once(tmp_path):
     assert len(done.stderr.strip().splitlines()) == 1 and "-n 1000000000000 needs about 120 TB of memory" in done.stderr
     assert elapsed < 10, elapsed  # importing: no compile, no run
     assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Issue 39, part 2: answers that mislead, figures that hide or contradict.
+
+
+def _line(out, label):
+    return next(line for line in out.splitlines() if line.strip().startswith(label))
+
+
+def test_flat_plate_drop_prints_plain_numbers_and_names_the_cli_option(capsys):
+    assert main(["drop", "--scene", "jesd22-board", "--no-plots"]) == 0
+    out = capsys.readouterr().out
+    assert "flat onto face 3 (bottom, -e2)" in out and "onto a corner" not in out
+    assert _line(out, "peak stress y (mm)").split()[-1] == "0"  # on the centre line, not -1.5e-08
+    assert _line(out, "gauge peak strain (microstrain)").split()[-1] == "3424.92"  # not "(3424.92)"
+    note = _line(out, "note: not converged")
+    assert "raise --max-modes (Numerics.max_modes, 16 here" in note
+    assert main(["drop", "--scene", "jesd22-board", "--no-plots", "--json", "--max-modes", "32"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["converged"] is True and report["n_modes"] > 16
+    assert not any("converged" in note for note in report["notes"])  # the deflection's note stays
+    assert isinstance(report["gauge_peak_strain_microstrain"], list)  # --json keeps its types
+
+
+def test_flat_landing_figures_show_the_impulse_used_and_both_corners():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import beamdrop_jax as bd
+
+    scene = bd.load_scene("jesd22-board")
+    res = bd.simulate(scene, bd.Numerics(n_modes=4))
+    P = np.asarray(res.impulse.P)
+    fig = bd.plot_impacts(scene, res)
+    ax = fig.axes[0]
+    assert "Flat landing on face 3" in ax.get_title() and f"{P[1]:.4g}" in ax.get_title()
+    star = next(line for line in ax.lines if line.get_label().startswith("final impulse"))
+    np.testing.assert_allclose([star.get_xdata()[0], star.get_ydata()[0]], P, rtol=1e-12)
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert any(text.startswith("final impulse") for text in labels)
+
+    fig = bd.plot_scene(scene, res)
+    ax = fig.axes[0]
+    face = next(line for line in ax.lines if line.get_label().startswith("face 3 strikes flat"))
+    np.testing.assert_allclose(face.get_ydata(), [0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(np.ptp(face.get_xdata()), 132.0, rtol=1e-9)  # both corners, the whole face
+    assert "1.12 m" in ax.get_title() and "1.11782" not in ax.get_title()
+    assert "not to scale" in ax.get_legend().get_title().get_text()
+    red = [t for t in ax.texts if "impulse" in t.get_text()]
+    assert len(red) == 1 and "4.68" in red[0].get_text()
+    # The drawing fills the figure: its axes take most of the figure's height (no wide empty margins).
+    fig.canvas.draw()
+    assert ax.get_position().height > 0.45
+    impact_default = bd.plot_impacts(bd.Scene.default(), bd.simulate(bd.Scene.default(), bd.Numerics(n_modes=4)))
+    legend = impact_default.axes[0].get_legend()
+    impact_default.canvas.draw()
+    box = legend.get_window_extent()
+    axes_box = impact_default.axes[0].get_window_extent()
+    assert box.y1 < axes_box.y0  # below the axes: it covers no line (the C = 0 line ran under it)
+    assert "final impulse P" in [t.get_text() for t in legend.get_texts()]

@@ -79,6 +79,13 @@ def one_error_line(capsys, argv, *expected):
         (["drop", "--max-impacts", "51"], ["--max-impacts", "51", "[1, 50]"]),
         (["montecarlo", "--max-impacts", "0"], ["--max-impacts", "[1, 50]"]),
         (["montecarlo", "-n", "1000000000000", "--no-plots"], ["-n 1000000000000", "memory", "valid here: -n in [1, "]),
+        # Issue 39, part 2: the options added to reach what the notes and users ask for.
+        (["drop", "--max-modes", "3"], ["--max-modes", "[4, 64]"]),
+        (["drop", "--max-modes", "many"], ["--max-modes", "whole number"]),
+        (["drop", "--max-moeds", "32"], ["unrecognized", "did you mean --max-modes"]),
+        (["drop", "--max-modes", "32", "--n-modes", "8"], ["--n-modes", "not allowed with", "--max-modes"]),
+        (["campaign", "--standard", "ista-1a", "--max-modes", "65"], ["--max-modes", "[4, 64]"]),
+        (["sensitivity", "--max-modes", "2"], ["--max-modes", "[4, 64]"]),
     ],
 )
 def test_bad_arguments_are_one_line_exit_2(argv, expected, capsys):

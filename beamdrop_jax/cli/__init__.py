@@ -26,6 +26,7 @@ from .._studies.standards import STANDARDS
 from ._helpers import CSV_ROW_BYTES as CSV_ROW_BYTES  # named in the -n check's message
 from ._helpers import (
     MAX_IMPACTS,
+    MAX_MODES,
     QUANTITIES,
     _Output,
     _Parser,
@@ -75,9 +76,15 @@ def build_parser() -> argparse.ArgumentParser:
                        help="do not keep compiled programs between runs (also: BEAMDROP_NO_CACHE=1)")
         return p
 
-    def modes(p, default="chosen from the scene"):
-        p.add_argument("--n-modes", type=_int_at_least(1), metavar="N",
-                       help=f"use exactly modes 1..N (default: {default})")
+    def modes(p, default="chosen from the scene", cap=False):
+        group = p.add_mutually_exclusive_group() if cap else p
+        group.add_argument("--n-modes", type=_int_at_least(1), metavar="N",
+                           help=f"use exactly modes 1..N (default: {default})")
+        if cap:
+            group.add_argument("--max-modes", type=_int_in(4, MAX_MODES), metavar="N",
+                               help=f"at most N modes where the count is chosen from the scene, N in [4, "
+                                    f"{MAX_MODES}] (default 16; Numerics.max_modes): raise it when a drop says "
+                                    "it is not converged")
 
     def impacts(p):
         p.add_argument("--max-impacts", type=_int_in(1, MAX_IMPACTS), metavar="K",
@@ -95,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "figures")
     p.add_argument("--method", choices=["closed_form", "diffrax"], help="board response method (default closed_form)")
     p.add_argument("--solver", help="diffrax solver (Tsit5, Dopri5, Dopri8, Kvaerno5, ImplicitEuler, ...)")
-    modes(p)
+    modes(p, cap=True)
     impacts(p)
     p.add_argument("--gauge", type=_float_in(0.0, 1e5, "mm"), metavar="X_MM",
                    help="also write the strain history at X_MM from end A (CSV: ms, microstrain, MPa)")
@@ -108,14 +115,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="packaged mass for mass-dependent heights, kg (default: the housing's)")
     p.add_argument("--height", type=_float_in(0.0, 1e3, "m", lo_open=True), metavar="M",
                    help="free-fall height where the standard leaves it open, m (IEC: default 1.0)")
-    modes(p)
+    modes(p, cap=True)
     impacts(p)
     p.set_defaults(func=cmd_campaign)
 
     p = command("sensitivity", "d(peak)/d(field) with units and the elasticity (%% per %%) of the peak for every "
                                "scene field, largest first; CSV table")
     p.add_argument("--quantity", default="stress", choices=list(QUANTITIES), help="which peak (default stress)")
-    modes(p)
+    modes(p, cap=True)
     p.set_defaults(func=cmd_sensitivity)
 
     p = command("optimize", "place the board (centre in mm, angle in deg) to minimise the peak stress (MPa) over a "

@@ -4,8 +4,23 @@ import json
 import math
 from pathlib import Path
 from .._studies.standards import STANDARDS
-from ._helpers import (QUANTITIES, _numerics, _save, _scene, _scene_name)
+from ._helpers import QUANTITIES, _cli_note, _numerics, _save, _scene, _scene_name, _tidy_positions
 
+
+
+# The faces as campaigns number them (ISTA): 1 top (+e2), 2 right (+e1), 3 bottom (-e2), 4 left (-e1); the face
+# that lands flat at orientation k x 90 deg.
+FACES = {1: "top, +e2", 2: "right, +e1", 3: "bottom, -e2", 4: "left, -e1"}
+FLAT_FACE = {0: 3, 1: 4, 2: 1, 3: 2}
+
+
+def _landing(scene, res) -> str:
+    """'onto a corner', or 'flat onto face 3 (bottom, -e2)' when the housing lands flat (two corners at once)."""
+    hit = getattr(res, "housing", res)  # a Response or a HousingImpact
+    if hit is None or not bool(hit.flat):
+        return "onto a corner"
+    face = FLAT_FACE[round(float(scene.drop.orientation) / (math.pi / 2)) % 4]
+    return f"flat onto face {face} ({FACES[face]})"
 
 
 def cmd_impact(args, output):
@@ -25,10 +40,10 @@ def cmd_impact(args, output):
     }
     if bool(hit.flat):
         summary["contact_mode"] = "flat landing (translation)"
-    output.summary(summary, f"Impact of {_scene_name(args)} ({args.law} restitution; S tangential, C normal)")
+    output.summary(summary, f"Impact of {_scene_name(args)} {_landing(scene, hit)} ({args.law} restitution; S "
+                            "tangential, C normal)")
     if not args.no_plots:
-        fig = bd.plot_impact(hit.B, hit.v0, scene.contact.friction, scene.contact.restitution, law=args.law)
-        _save(output, fig, "impact.png", args)
+        _save(output, bd.plot_housing_impact(scene, hit, law=args.law), "impact.png", args)
 
 
 def cmd_drop(args, output):
@@ -53,8 +68,9 @@ def cmd_drop(args, output):
     res = bd.simulate(scene, numerics, gauges=gauges)
     tau = float(scene.contact.duration)
     output.report["scene"] = args.scene or "default"
-    output.summary(res.summary(),
-                   f"Drop of {_scene_name(args)}: {float(scene.drop.height):g} m onto a corner at "
+    size_mm = 1e3 * max(float(scene.board.length), float(getattr(scene.board, "width", 0.0)))
+    output.summary(_tidy_positions(res.summary(), size_mm),
+                   f"Drop of {_scene_name(args)}: {float(scene.drop.height):g} m {_landing(scene, res)} at "
                    f"{math.degrees(float(scene.drop.orientation)):.1f} deg, "
                    + (f"half-sine contact {tau * 1e3:g} ms" if tau > 0 else "ideal impulse (contact duration 0)")
                    + board_text)
@@ -75,8 +91,7 @@ def cmd_drop(args, output):
                        f"{r['approach_speed_m_per_s']:>15.4f} {'{:.4f}, {:.4f}'.format(*r['impulse_Ns']):>20} "
                        f"{'{:.3f}, {:.3f}'.format(*r['support_jumps_m_per_s']):>17}")
     for note in bd.response_notes(scene, res):
-        output.say(f"  note: {note}")
-        output.report.setdefault("notes", []).append(note)
+        output.note(_cli_note(note, numerics))
     if plate:
         from .._common.report import summary_text, write_csv
 

@@ -14,6 +14,8 @@ from pathlib import Path
 # orientation). Each pair of impacts is a term of the compiled search (its size and compile time grow as K^2: on 2
 # cores K = 3, 20, 50 compile in 6, 14, 54 s and take 0.3, 0.5, 1.3 GB).
 MAX_IMPACTS = 50
+# --max-modes: a plate's grid grows as modes^3 (its time grid as modes^2); 64 modes take seconds on 2 cores.
+MAX_MODES = 64
 # What a Monte-Carlo drop costs, measured on `montecarlo -n 2000000` (float64): 113 bytes of memory per drop
 # without figures and 240 with them, over 0.5 GB for the process itself; 75 bytes of CSV per drop.
 DROP_BYTES, DROP_BYTES_PLOTTED, PROCESS_BYTES, CSV_ROW_BYTES = 120, 250, 600 << 20, 76
@@ -141,8 +143,49 @@ class _Output:
     def summary(self, summary: dict, title: str):
         from .._common.report import plain, summary_text
 
-        self.report.update(plain(summary))
-        self.say(summary_text(summary, title))
+        summary = plain(summary)
+        self.report.update(summary)
+        # For people, one value is a number, not a one-element tuple "(3424.92)".
+        self.say(summary_text({k: v[0] if isinstance(v, list) and len(v) == 1 else v for k, v in summary.items()},
+                              title))
+
+    def note(self, text):
+        self.say(f"  note: {text}")
+        self.report.setdefault("notes", []).append(text)
+
+
+# Positions closer to 0 than this fraction of the board's size are round-off of a symmetric answer, printed 0.
+POSITION_RTOL = 1e-6
+
+
+def _tidy_positions(summary: dict, size_mm: float) -> dict:
+    """`summary` with every position in mm (keys ending _x_mm, _y_mm) within `POSITION_RTOL` x `size_mm` of 0
+    set to 0: a peak on the centre line computed as -1.5e-08 mm is on the centre line."""
+    from .._common.report import plain
+
+    summary = plain(summary)
+    tol = POSITION_RTOL * size_mm
+    for key, value in summary.items():
+        if key.endswith(("_x_mm", "_y_mm")) and isinstance(value, float) and abs(value) < tol:
+            summary[key] = 0.0
+    return summary
+
+
+def _cli_note(note: str, numerics) -> str:
+    """A library note (which names the Python API's fields) as the command line's user needs it: the option that
+    does it, with the field in brackets."""
+    n = numerics.max_modes
+    for api, cli in (
+        ("raise Numerics.max_modes", f"raise --max-modes (Numerics.max_modes, {n} here; at most {MAX_MODES})"),
+        ("raise Numerics.pulse_modes (modes up to f_k x duration >= 2 by default)",
+         "give more modes with --n-modes N (or, from Python, raise Numerics.pulse_modes: modes up to f_k x "
+         "duration >= 2 by default)"),
+        ("give Contact.duration a physical value", "give the scene file's [contact] duration a physical value"),
+        ('(Numerics(method="diffrax", stretching=True))',
+         '(from Python: Numerics(method="diffrax", stretching=True); no command-line option)'),
+    ):
+        note = note.replace(api, cli)
+    return note
 
 
 def _scene(args):
@@ -238,7 +281,8 @@ def _save(output, fig, name, args):
 def _numerics(args, **overrides):
     import beamdrop_jax as bd
 
-    kw = {k: getattr(args, k) for k in ("method", "solver", "n_modes", "max_impacts") if getattr(args, k, None)}
+    kw = {k: getattr(args, k) for k in ("method", "solver", "n_modes", "max_modes", "max_impacts")
+          if getattr(args, k, None)}
     kw.update(overrides)
     return bd.Numerics(**kw)
 
