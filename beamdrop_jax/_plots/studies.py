@@ -1,0 +1,234 @@
+"""The figures of studies over many drops: placement, Monte-Carlo, campaigns, benchmarks."""
+
+import numpy as np
+
+from .._common.checks import on_host
+from .._scene.containers import board_ends
+from .._studies.standards import STANDARDS
+from .common import _axes
+
+
+def _draw_housing(ax, scene, placement, **style):
+    from matplotlib.patches import Rectangle
+
+
+    W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
+    ax.add_patch(Rectangle((-W / 2, -H / 2), W, H, fill=False, lw=1.5, color="0.3"))
+    ends = board_ends(on_host(placement), float(scene.board.length)) * 1e3
+    ax.plot(ends[:, 0], ends[:, 1], **style)
+
+
+def plot_placement(scene, result, landscape, *, axes=None):
+    """Left: the objective over board-centre positions at the optimal angle, with the optimiser's path.
+    Right: the housing (body axes, mm) with the board before and after."""
+    import matplotlib.pyplot as plt
+
+    if axes is None:
+        fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), layout="constrained")
+    ax1, ax2 = axes
+    fig = ax1.figure
+    c1, c2, values = landscape
+    mesh = ax1.pcolormesh(np.asarray(c1) * 1e3, np.asarray(c2) * 1e3, np.asarray(values).T / 1e6,
+                          shading="auto", cmap="viridis")
+    fig.colorbar(mesh, ax=ax1, label=f"{result.objective} peak stress over drops (MPa)")
+    path = np.asarray(result.path)
+    ax1.plot(path[:, 0] * 1e3, path[:, 1] * 1e3, "w.-", lw=1, ms=3, label="optimiser path (best start)")
+    ax1.plot(path[0, 0] * 1e3, path[0, 1] * 1e3, "wo", ms=7, mfc="none")
+    ax1.plot(path[-1, 0] * 1e3, path[-1, 1] * 1e3, "r*", ms=14, label="optimum")
+    ax1.set_xlabel("board centre c1 along the width (mm)")
+    ax1.set_ylabel("board centre c2 along the height (mm)")
+    ax1.set_title(f"Objective over the centre at the optimum's angle {np.degrees(float(result.placement.angle)):.1f} "
+                  f"deg\n(the path also turns: {np.degrees(path[0, 2]):.1f} -> {np.degrees(path[-1, 2]):.1f} deg; "
+                  "drawn at its centres)", fontsize=9)
+    ax1.legend(fontsize=8, loc="lower right")
+    _draw_housing(ax2, scene, scene.placement, color="tab:gray", lw=4, ls="--",
+                  label=f"before: {float(result.initial_value) / 1e6:.1f} MPa")
+    _draw_housing(ax2, scene, result.placement, color="tab:red", lw=4,
+                  label=f"after: {float(result.value) / 1e6:.1f} MPa")
+    ax2.plot(0, 0, "k+", ms=10, label="centre of mass G")
+    ax2.set_aspect("equal")
+    ax2.set_xlabel("e1 (mm)")
+    ax2.set_ylabel("e2 (mm)")
+    ax2.set_title(f"Board placement, {result.objective} objective")
+    ax2.legend(fontsize=8, loc="upper right")
+    W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
+    ax2.set_xlim(-0.6 * W, 0.6 * W)
+    ax2.set_ylim(-0.6 * H - 0.3 * H, 0.6 * H + 0.3 * H)
+    return fig
+
+
+def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None):
+    """Left: peak against drop orientation (polar). Right: exceedance curve P(peak > s) with the limit marked."""
+    import matplotlib.pyplot as plt
+
+    if axes is None:
+        fig = plt.figure(figsize=(12, 4.8), layout="constrained")
+        axes = (fig.add_subplot(1, 2, 1, projection="polar"), fig.add_subplot(1, 2, 2))
+    ax1, ax2 = axes
+    fig = ax1.figure
+    unit, scale = {"stress": ("MPa", 1e-6), "strain": ("microstrain", 1e6), "deflection": ("mm", 1e3)}[quantity]
+    valid = np.asarray(result.valid)
+    values = np.asarray(getattr(result, f"peak_{quantity}"))[valid] * scale
+    orient = np.broadcast_to(np.asarray(result.samples.drop.orientation), valid.shape)[valid]
+    dots = ax1.scatter(orient, values, s=2, alpha=0.4, c=values, cmap="viridis", rasterized=True)
+    fig.colorbar(dots, ax=ax1, pad=0.12, shrink=0.8, label=f"peak {quantity} ({unit})")
+    ax1.set_rlabel_position(112.5)  # radial labels in the quiet sector, off the curve
+    ax1.tick_params(axis="y", labelsize=7, labelcolor="0.35")
+    ax1.set_title(f"peak {quantity} ({unit}; radius) against drop orientation (deg)", pad=18, fontsize=10)
+    ordered = np.sort(values)
+    ccdf = 1.0 - np.arange(1, ordered.size + 1) / ordered.size
+    ax2.semilogy(ordered[:-1], ccdf[:-1], color="tab:blue", lw=2, label=f"{ordered.size} valid drops")
+    if limit is not None:
+        p, (lo, hi), k = result.exceedance(limit, quantity)
+        ax2.axvline(limit * scale, color="tab:red", ls="--",
+                    label=f"limit {limit * scale:.4g} {unit}: P = {p:.3g} (95 % CI {lo:.3g}-{hi:.3g})")
+    ax2.set_xlabel(f"peak {quantity} ({unit})")
+    ax2.set_ylabel("exceedance probability P(peak > value)")
+    ax2.set_title("Exceedance curve (complementary CDF)")
+    ax2.grid(True, which="both", alpha=0.3)
+    ax2.legend(fontsize=8)
+    return fig
+
+
+def plot_campaign(result, *, ax=None, limit: float | None = None, scene: str | None = None):
+    """Bar chart of a `CampaignResult`: peak stress (MPa) of every drop, coloured by attitude, every drop tied
+    for the worst outlined, a zero peak labelled 0, drops the plane cannot represent marked n/a; `limit` (Pa) draws
+    an allowable stress; `scene` names the scene in the title."""
+    import textwrap
+
+    import matplotlib.patches as mpatches
+
+
+    n = len(result.drops)
+    fig, ax = _axes(ax, figsize=(max(6.5, 0.42 * n + 2.5), 5.2))
+    colours = {"face": "tab:blue", "edge": "tab:orange", "corner": "tab:green", "board": "tab:purple"}
+    stress = np.asarray(result.stress, float) / 1e6
+    bars = ax.bar(range(n), np.nan_to_num(stress), color=[colours[d.attitude] for d in result.drops], width=0.7)
+    worst = result.worst_drops
+    top = float(np.nanmax(stress)) if worst else 1.0
+    top = top if top > 0 else 1.0
+    for i in worst:
+        bars[i].set_edgecolor("black")
+        bars[i].set_linewidth(2.0)
+    for i in range(n):
+        if not np.isfinite(stress[i]):
+            ax.text(i, 0.02 * top, "n/a", ha="center", va="bottom", rotation=90, fontsize=8, color="0.4")
+        elif stress[i] < 0.01 * top:  # a bar too short to see: say its value (faces 2 and 4 give ~0)
+            shown = "0" if stress[i] < 1e-9 * top else f"{stress[i]:.2g}"  # round-off zero reads as 0
+            ax.text(i, 0.02 * top, shown, ha="center", va="bottom", fontsize=8)
+    if worst:
+        tie = f" ({len(worst)} drops tie)" if len(worst) > 1 else ""
+        ax.annotate(f"worst: {stress[worst[0]]:.1f} MPa{tie}", (worst[0], stress[worst[0]]), xytext=(0, 6),
+                    textcoords="offset points", ha="left", fontsize=9)
+    if limit is not None:
+        ax.axhline(limit / 1e6, color="tab:red", ls="--", lw=1.2, label=f"limit {limit / 1e6:g} MPa")
+    ax.set_xticks(range(n), [textwrap.shorten(d.label, 28) for d in result.drops], rotation=60, ha="right",
+                  fontsize=8)
+    ax.set_ylabel("peak bending stress (MPa)")
+    ax.set_ylim(0, 1.2 * top)
+    name = STANDARDS.get(result.standard, result.standard).split(":")[0].split(" (")[0]
+    heights = sorted({round(d.height, 4) for d in result.drops if np.isfinite(d.height)})
+    where = (f"from {', '.join(f'{h:g}' for h in heights)} m" if heights else "board-level half-sine at both supports")
+    title = f"{name}: {n} drop{'s' if n != 1 else ''} {where}" + (f", scene {scene}" if scene else "")
+    ax.set_title("\n".join(textwrap.wrap(title, 70)), fontsize=10)
+    handles = [mpatches.Patch(color=c, label=a) for a, c in colours.items()
+               if any(d.attitude == a for d in result.drops)]
+    ax.legend(handles=handles + ([ax.lines[-1]] if limit is not None else []), fontsize=8, loc="upper right")
+    return fig
+
+
+def plot_bench(rows, *, ax=None):
+    """Log-log chart of max relative error of the peak stress against seconds per drop, the Pareto front of each
+    workload marked (rows as `run_bench` returns them; open markers: drops whose contact duration varies; half-filled:
+    clattering drops, up to 3 impacts each)."""
+    fig, ax = _axes(ax, (8.0, 5.5))
+    floor = 1e-16
+    groups = {}
+    for r in rows:
+        groups.setdefault((r["method"], r.get("workload", "fixed duration")), []).append(r)
+    styles = {}  # one marker and colour per method, filled for the fixed duration, open where it varies
+    for (method, workload), rs in groups.items():
+        marker, colour = styles.setdefault(method, ("osD^vP*Xh<>"[len(styles) % 11], f"C{len(styles) % 10}"))
+        other = workload != "fixed duration"
+        fill = dict(mfc="none") if workload.startswith("duration") else dict(fillstyle="left") if other else {}
+        ax.loglog([r["seconds_per_drop"] for r in rs], [max(r["max_error"], floor) for r in rs], marker, ms=7,
+                  color=colour, alpha=0.8, label=method + (f" ({workload})" if other else ""), **fill)
+    for workload, style in (("fixed duration", "k-"), ("duration U[0.2, 1] ms", "k--"), ("up to 3 impacts", "k:")):
+        front = sorted((r for r in rows if r.get("pareto") and r.get("workload", "fixed duration") == workload),
+                       key=lambda r: r["seconds_per_drop"])
+        if len(front) > 1:
+            ax.loglog([r["seconds_per_drop"] for r in front], [max(r["max_error"], floor) for r in front], style,
+                      lw=1, label=f"Pareto front ({workload})")
+    ax.axhline(0.01, color="tab:red", ls=":", lw=1, label="1 % error")
+    ax.set_xlabel("seconds per drop (median, batched where possible)")
+    ax.set_ylabel("max relative error of peak stress vs converged reference")
+    ax.set_title("Speed against accuracy on random drops of the default scene")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="best")
+    return fig
+
+
+def plot_stability(study: dict):
+    """The stability map: four panels from `stability_study`."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 2, figsize=(13, 10), layout="constrained")
+    ax = axes[0, 0]
+    any_failed = False
+    for solver in sorted({r["solver"] for r in study["stiffness"]}):
+        rs = [r for r in study["stiffness"] if r["solver"] == solver]
+        ax.loglog([r["top_frequency_hz"] for r in rs], [r["steps"] for r in rs], "o-",
+                  label=f"{solver} (rtol {rs[0]['rtol']:g})")
+        for r in rs:
+            if r["failed"]:
+                any_failed = True
+                ax.plot(r["top_frequency_hz"], r["steps"], "rx", ms=12)
+    ax.set_xlabel("frequency of the highest mode kept (Hz)")
+    ax.set_ylabel("solver steps over the window")
+    ax.set_title("Stiffness: steps grow with the top mode" + (" (x: max_steps hit)" if any_failed else ""),
+                 fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+
+    ax = axes[0, 1]
+    for solver in sorted({r["solver"] for r in study["tolerance"]}):
+        for f32, style in ((False, "o-"), (True, "s--")):
+            rs = [r for r in study["tolerance"] if r["solver"] == solver and r["float32"] == f32]
+            ok = [r for r in rs if np.isfinite(r["error"]) and not r["flags"]]
+            failed = [r for r in rs if r not in ok]
+            if ok:
+                line, = ax.loglog([r["rtol"] for r in ok], [max(r["error"], 1e-16) for r in ok], style,
+                                  label=f"{solver} {'f32' if f32 else 'f64'}")
+                colour = line.get_color()
+            if failed:
+                ax.loglog([r["rtol"] for r in failed], [1.0] * len(failed), "x", ms=10, mew=2,
+                          color=colour if ok else "tab:red",
+                          label=f"{solver} {'f32' if f32 else 'f64'}: failed (flagged)")
+    ax.set_xlabel("diffrax rtol")
+    ax.set_ylabel("peak-stress error against the closed form (x at 1: failed)")
+    ax.set_title("Tolerance: float32 floors near 1e-6; first-order damping", fontsize=10)
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(True, which="both", alpha=0.3)
+
+    ax = axes[1, 0]
+    for tau in sorted({r["duration"] for r in study["modes"]}):
+        rs = [r for r in study["modes"] if r["duration"] == tau]
+        label = "ideal impulse" if tau == 0 else f"half-sine {tau * 1e3:g} ms"
+        ax.semilogx([r["n_modes"] for r in rs], [r["stress"] / 1e6 for r in rs], "o-", label=label)
+    ax.set_xlabel("modes")
+    ax.set_ylabel("peak stress (MPa)")
+    ax.set_title("Ideal impulse never converges; 0.05-1 ms pulses do", fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+
+    ax = axes[1, 1]
+    rs = study["buckling"]
+    ax.plot([r["load_ratio"] for r in rs], [r["f1_hz"] for r in rs], "o-", color="tab:blue", label="f1 (Hz)")
+    ax.set_xlabel("axial compression / Euler load")
+    ax.set_ylabel("first frequency (Hz)", color="tab:blue")
+    ax2 = ax.twinx()
+    ax2.plot([r["load_ratio"] for r in rs], [r["stress"] / 1e6 for r in rs], "s--", color="tab:red")
+    ax2.set_ylabel("peak stress (MPa)", color="tab:red")
+    ax.set_title("Approaching buckling: f1 -> 0, the peak grows", fontsize=10)
+    ax.grid(True, alpha=0.3)
+    return fig
