@@ -606,3 +606,48 @@ def test_flat_landing_figures_show_the_impulse_used_and_both_corners():
     axes_box = impact_default.axes[0].get_window_extent()
     assert box.y1 < axes_box.y0  # below the axes: it covers no line (the C = 0 line ran under it)
     assert "final impulse P" in [t.get_text() for t in legend.get_texts()]
+
+
+def test_campaign_says_why_drops_are_zero_and_judges_a_limit(tmp_path, capsys):
+    argv = ["campaign", "--standard", "ista-1a", "--n-modes", "4", "--no-plots", "--out", str(tmp_path)]
+    assert main(argv + ["--allowable-microstrain", "3000"]) == 0
+    out = capsys.readouterr().out
+    for label in ("face 2", "face 4", "edge 2-5"):
+        row = next(line for line in out.splitlines() if line.split()[1:3] == label.split())
+        assert "0.00" in row and "no bending in the plane model" in row and row.split()[9] == "n/a", row
+    assert "FAIL: 3 of 5 drops judged exceed 3000 microstrain" in out
+    assert main(argv) == 0  # without a limit: no verdicts, the zero rows still say why
+    out = capsys.readouterr().out
+    assert "judged" not in out and out.count("no bending in the plane model") >= 3
+
+
+def test_campaign_chart_explains_zero_and_na_bars_and_draws_the_limit():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import beamdrop_jax as bd
+
+    numerics = bd.Numerics(n_modes=4)
+    result = bd.campaign(bd.Scene.default(), "ista-1a", numerics)
+    assert result.unbent == [3, 5, 7]  # edge 2-5, faces 2 and 4
+    fig = bd.plot_campaign(result, scene="default", limit=3000e-6, quantity="strain")
+    ax = fig.axes[0]
+    texts = {int(round(t.get_position()[0])): t for t in ax.texts if t.get_text().startswith(("0:", "n/a"))}
+    assert {i: t.get_text() for i, t in texts.items()} == {3: "0: no bending", 5: "0: no bending",
+                                                            7: "0: no bending", 8: "n/a: out of the plane",
+                                                            9: "n/a: out of the plane"}
+    for t in texts.values():  # readable: not tiny grey
+        assert t.get_fontsize() >= 8 and matplotlib.colors.to_rgb(t.get_color())[0] < 0.3
+    footnote = " ".join(t.get_text() for t in fig.texts)
+    assert "plane model does not bend" in footnote and "n/a" in footnote
+    limit = next(line for line in ax.lines if line.get_label().startswith("limit 3000 microstrain"))
+    assert list(limit.get_ydata()) == [3000.0, 3000.0] and "3 of 5 drops judged are over (FAIL)" in limit.get_label()
+    assert [i for i, bar in enumerate(ax.patches[:10]) if bar.get_hatch()] == [2, 4, 6]
+
+    jesd = bd.plot_campaign(bd.campaign(bd.Scene.default(), "jesd22-b111", numerics)).axes[0]
+    assert "30 drops" in jesd.get_title() and "1 drop" not in jesd.get_title()
+    assert jesd.get_xticklabels()[0].get_text() == "board-level half-sine\n1500 g 0.5 ms"  # whole, not "[...]"
+    mil = bd.plot_campaign(bd.campaign(bd.Scene.default(), "mil-std-810h-516-iv", numerics), scene="default")
+    assert mil.axes[0].get_title().split("\n") == [
+        "MIL-STD-810H Method 516.8 Procedure IV transit drop, materiel under 45.4 kg",
+        "26 drops from 1.22 m, scene default"]

@@ -86,6 +86,10 @@ def one_error_line(capsys, argv, *expected):
         (["drop", "--max-modes", "32", "--n-modes", "8"], ["--n-modes", "not allowed with", "--max-modes"]),
         (["campaign", "--standard", "ista-1a", "--max-modes", "65"], ["--max-modes", "[4, 64]"]),
         (["sensitivity", "--max-modes", "2"], ["--max-modes", "[4, 64]"]),
+        (["campaign", "--standard", "ista-1a", "--allowable-microstrain", "0.003"], ["microstrain", "not as a fraction"]),
+        (["campaign", "--standard", "ista-1a", "--allowable-microstrain", "x"], ["--allowable-microstrain", "not a number"]),
+        (["campaign", "--standard", "ista-1a", "--allowable-microstrian", "3000"],
+         ["unrecognized", "did you mean --allowable-microstrain"]),
     ],
 )
 def test_bad_arguments_are_one_line_exit_2(argv, expected, capsys):

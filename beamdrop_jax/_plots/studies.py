@@ -90,50 +90,94 @@ def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None):
     return fig
 
 
-def plot_campaign(result, *, ax=None, limit: float | None = None, scene: str | None = None):
-    """Bar chart of a `CampaignResult`: peak stress (MPa) of every drop, coloured by attitude, every drop tied
-    for the worst outlined, a zero peak labelled 0, drops the plane cannot represent marked n/a; `limit` (Pa) draws
-    an allowable stress; `scene` names the scene in the title."""
+def plot_campaign(result, *, ax=None, limit: float | None = None, scene: str | None = None,
+                  quantity: str = "stress"):
+    """Bar chart of a `CampaignResult`: the peak `quantity` ("stress" in MPa or "strain" in microstrain) of every
+    drop, coloured by attitude, every drop tied for the worst outlined; a drop that does not bend the board in the
+    plane model is labelled 0 with the reason, one the plane cannot represent n/a, both explained under the chart;
+    `limit` (Pa, or a strain fraction) draws the allowable with the drops over it marked; `scene` names the scene
+    in the title."""
     import textwrap
 
     import matplotlib.patches as mpatches
 
-
     n = len(result.drops)
-    fig, ax = _axes(ax, figsize=(max(6.5, 0.42 * n + 2.5), 5.2))
+    fig, ax = _axes(ax, figsize=(max(6.5, 0.42 * n + 2.5) + 1.6, 5.6))
     colours = {"face": "tab:blue", "edge": "tab:orange", "corner": "tab:green", "board": "tab:purple"}
-    stress = np.asarray(result.stress, float) / 1e6
-    bars = ax.bar(range(n), np.nan_to_num(stress), color=[colours[d.attitude] for d in result.drops], width=0.7)
+    unit, scale = {"stress": ("MPa", 1e-6), "strain": ("microstrain", 1e6)}[quantity]
+    values = np.asarray(getattr(result, quantity), float) * scale
+    bars = ax.bar(range(n), np.nan_to_num(values), color=[colours[d.attitude] for d in result.drops], width=0.7)
     worst = result.worst_drops
-    top = float(np.nanmax(stress)) if worst else 1.0
-    top = top if top > 0 else 1.0
+    top = float(np.nanmax(values)) if worst else 1.0
+    top = max(top if top > 0 else 1.0, 0.0 if limit is None else limit * scale)
     for i in worst:
         bars[i].set_edgecolor("black")
         bars[i].set_linewidth(2.0)
+    unbent = set(result.unbent)
     for i in range(n):
-        if not np.isfinite(stress[i]):
-            ax.text(i, 0.02 * top, "n/a", ha="center", va="bottom", rotation=90, fontsize=8, color="0.4")
-        elif stress[i] < 0.01 * top:  # a bar too short to see: say its value (faces 2 and 4 give ~0)
-            shown = "0" if stress[i] < 1e-9 * top else f"{stress[i]:.2g}"  # round-off zero reads as 0
-            ax.text(i, 0.02 * top, shown, ha="center", va="bottom", fontsize=8)
+        if not np.isfinite(values[i]):
+            ax.text(i, 0.02 * top, "n/a: out of the plane", ha="center", va="bottom", rotation=90, fontsize=8.5,
+                    color="0.15")
+        elif i in unbent:
+            ax.text(i, 0.02 * top, "0: no bending", ha="center", va="bottom", rotation=90, fontsize=8.5, color="0.15")
+        elif values[i] < 0.01 * top:  # a bar too short to see: say its value
+            ax.text(i, 0.02 * top, f"{values[i]:.2g}", ha="center", va="bottom", fontsize=8)
     if worst:
         tie = f" ({len(worst)} drops tie)" if len(worst) > 1 else ""
-        ax.annotate(f"worst: {stress[worst[0]]:.1f} MPa{tie}", (worst[0], stress[worst[0]]), xytext=(0, 6),
+        ax.annotate(f"worst: {values[worst[0]]:.4g} {unit}{tie}", (worst[0], values[worst[0]]), xytext=(0, 6),
                     textcoords="offset points", ha="left", fontsize=9)
+    handles = [mpatches.Patch(color=c, label=a) for a, c in colours.items()
+               if any(d.attitude == a for d in result.drops)]
     if limit is not None:
-        ax.axhline(limit / 1e6, color="tab:red", ls="--", lw=1.2, label=f"limit {limit / 1e6:g} MPa")
-    ax.set_xticks(range(n), [textwrap.shorten(d.label, 28) for d in result.drops], rotation=60, ha="right",
-                  fontsize=8)
-    ax.set_ylabel("peak bending stress (MPa)")
+        judged = [i for i in range(n) if np.isfinite(values[i]) and i not in unbent]
+        over = [i for i in judged if values[i] > limit * scale]
+        handles.append(ax.axhline(limit * scale, color="tab:red", ls="--", lw=1.5,
+                                  label=f"limit {limit * scale:g} {unit}:\n{len(over)} of {len(judged)} drops "
+                                        f"judged are over ({'FAIL' if over else 'PASS'})"))
+        for i in over:
+            bars[i].set_hatch("///")
+            bars[i].set_edgecolor("tab:red")
+        if over:
+            handles.append(mpatches.Patch(facecolor="white", edgecolor="tab:red", hatch="///", label="over the limit"))
+    # Labels whole, on two lines where long (JESD22's "board-level half-sine 1500 g 0.5 ms").
+    ax.set_xticks(range(n), [textwrap.fill(d.label, 22) for d in result.drops], rotation=60 if n > 1 else 0,
+                  ha="right" if n > 1 else "center", fontsize=8)
+    ax.set_xlim(-0.6, n - 0.4)
+    ax.set_ylabel(f"peak bending {quantity} ({unit})")
     ax.set_ylim(0, 1.2 * top)
     name = STANDARDS.get(result.standard, result.standard).split(":")[0].split(" (")[0]
     heights = sorted({round(d.height, 4) for d in result.drops if np.isfinite(d.height)})
-    where = (f"from {', '.join(f'{h:g}' for h in heights)} m" if heights else "board-level half-sine at both supports")
-    title = f"{name}: {n} drop{'s' if n != 1 else ''} {where}" + (f", scene {scene}" if scene else "")
-    ax.set_title("\n".join(textwrap.wrap(title, 70)), fontsize=10)
-    handles = [mpatches.Patch(color=c, label=a) for a, c in colours.items()
-               if any(d.attitude == a for d in result.drops)]
-    ax.legend(handles=handles + ([ax.lines[-1]] if limit is not None else []), fontsize=8, loc="upper right")
+    where = (f"from {', '.join(f'{h:g}' for h in heights)} m" if heights else "of a board-level half-sine at both "
+             "supports")
+    total = result.total_drops
+    count = f"{total} drop{'s' if total != 1 else ''}" + (f" ({n} attitudes)" if total != n and n > 1 else "")
+    # One line per part, each broken only at its commas: the standard's name, then the drops.
+    width = int(14 * fig.get_figwidth())
+    lines = []
+    for part in (name, f"{count} {where}" + (f", scene {scene}" if scene else "")):
+        line = ""
+        for piece in part.split(", "):
+            if line and len(line) + len(piece) + 2 > width:
+                lines.append(line + ",")
+                line = piece
+            else:
+                line = f"{line}, {piece}" if line else piece
+        lines.append(line)
+    ax.set_title("\n".join(lines), fontsize=10)
+    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the bars
+    notes = []
+    if unbent:
+        notes.append("0: the velocity change runs along the board, which the plane model does not bend (a flat "
+                     "landing on a face perpendicular to the board moves it along itself)")
+    if not np.all(np.isfinite(values)):
+        notes.append("n/a: the velocity change is perpendicular to the plane of the model (faces 5 and 6), not "
+                     "represented in 2-D")
+    if notes:
+        text = "\n".join(textwrap.fill(t, int(15 * fig.get_figwidth())) for t in notes)
+        fig.text(0.01, 0.01, text, fontsize=8, va="bottom", ha="left", color="0.2")
+        room = (text.count("\n") + 1) * 0.14 / fig.get_figheight() + 0.02  # 0.14 in a line
+        if fig.get_layout_engine() is not None:
+            fig.get_layout_engine().set(rect=(0, room, 1, 1 - room))
     return fig
 
 

@@ -115,6 +115,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="packaged mass for mass-dependent heights, kg (default: the housing's)")
     p.add_argument("--height", type=_float_in(0.0, 1e3, "m", lo_open=True), metavar="M",
                    help="free-fall height where the standard leaves it open, m (IEC: default 1.0)")
+    p.add_argument("--allowable-microstrain", type=_microstrain, metavar="UE",
+                   help="the board's strain limit in microstrain (your part's or supplier's figure; no default): "
+                        "each drop is marked ok or OVER, the chart shows peak strain against it")
     modes(p, cap=True)
     impacts(p)
     p.set_defaults(func=cmd_campaign)

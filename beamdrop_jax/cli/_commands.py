@@ -130,15 +130,30 @@ def cmd_drop(args, output):
 
 def cmd_campaign(args, output):
     import beamdrop_jax as bd
+    from .._studies import campaign as campaign_module
 
     scene = _scene(args)
     result = bd.campaign(scene, args.standard, _numerics(args), mass=args.mass, height=args.height)
-    output.report |= {"standard": args.standard, "drops": result.rows()}
+    limit = None if args.allowable_microstrain is None else args.allowable_microstrain * 1e-6
+    rows = result.rows(limit)
+    output.report |= {"standard": args.standard, "drops": rows}
     output.say(f"{args.standard}: {STANDARDS[args.standard]}")
-    output.say(result.table())
+    output.say(result.table(limit))
+    if limit is not None:
+        over = [r["label"] for r in rows if r["over_limit"]]
+        judged = sum(r["over_limit"] is not None for r in rows)
+        output.report["drops_over_limit"] = over
+        output.say(f"{'FAIL' if over else 'PASS'}: {len(over)} of {judged} drops judged exceed "
+                   f"{args.allowable_microstrain:g} microstrain" + (f" ({', '.join(over)})" if over else "")
+                   + (f"; {len(rows) - judged} not judged (n/a: not represented or not bent in the plane model)"
+                      if judged < len(rows) else ""))
+    if result.unbent:
+        output.note(f"{len(result.unbent)} drops show 0: {campaign_module.UNBENT_NOTE}")
     output.wrote(result.to_csv(Path(args.out) / f"campaign-{args.standard}.csv"))
     if not args.no_plots:
-        _save(output, bd.plot_campaign(result, scene=args.scene or "default"), f"campaign-{args.standard}.png", args)
+        fig = bd.plot_campaign(result, scene=args.scene or "default", limit=limit,
+                               quantity="stress" if limit is None else "strain")
+        _save(output, fig, f"campaign-{args.standard}.png", args)
 
 
 def cmd_sensitivity(args, output):
