@@ -651,3 +651,18 @@ def test_campaign_chart_explains_zero_and_na_bars_and_draws_the_limit():
     assert mil.axes[0].get_title().split("\n") == [
         "MIL-STD-810H Method 516.8 Procedure IV transit drop, materiel under 45.4 kg",
         "26 drops from 1.22 m, scene default"]
+
+
+def test_optimize_keeps_the_board_in_a_region_and_says_what_the_objective_leaves_out(tmp_path, capsys):
+    assert main(["optimize", "--orientations", "30,60", "--steps", "3", "--starts", "2", "--n-modes", "4",
+                 "--region", "-10,-5,10,5", "--max-angle", "5", "--no-plots", "--json", "--out", str(tmp_path)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["region_centre_box_mm"] == [[-10.0, -5.0], [10.0, 5.0]] and report["max_angle_deg"] == 5.0
+    c1, c2 = report["after_centre_mm"]
+    assert -10 <= c1 <= 10 and -5 <= c2 <= 5 and abs(report["after_angle_deg"]) <= 5
+    assert report["objective_leaves_out"].startswith("motion along the board and out of the plane")
+    assert report["notes"][0].startswith("the objective leaves out motion along the board and out of the plane")
+    assert report["largest_jump_along_the_board_after_m_per_s"] > 1.0  # the motion it leaves out is not small
+    history = np.genfromtxt(tmp_path / "optimize-history.csv", delimiter=",", names=True)
+    assert np.all(np.abs(history["c1_mm"]) <= 10) and np.all(np.abs(history["c2_mm"]) <= 5)
+    assert np.all(np.abs(history["angle_deg"]) <= 5 + 1e-9)

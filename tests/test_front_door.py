@@ -90,6 +90,13 @@ def one_error_line(capsys, argv, *expected):
         (["campaign", "--standard", "ista-1a", "--allowable-microstrain", "x"], ["--allowable-microstrain", "not a number"]),
         (["campaign", "--standard", "ista-1a", "--allowable-microstrian", "3000"],
          ["unrecognized", "did you mean --allowable-microstrain"]),
+        (["optimize", "--region", "1,2,3"], ["--region", "four numbers", "c1lo,c2lo,c1hi,c2hi"]),
+        (["optimize", "--region", "10,-5,-10,5"], ["--region", "low must be <= its high"]),
+        (["optimize", "--region", "-10,x,10,5"], ["--region", "not a number"]),
+        (["optimize", "--regoin", "-10,-5,10,5"], ["unrecognized", "did you mean --region"]),
+        (["optimize", "--max-angle", "95"], ["--max-angle", "[0, 90] deg"]),
+        (["optimize", "--region", "20,-5,30,5", "--no-cache"], ["board centre [0.0, 0.0] mm", "inside the region"]),
+        (["optimize", "--region", "-100,-5,-90,5", "--no-cache"], ["region", "a level board reaches"]),
     ],
 )
 def test_bad_arguments_are_one_line_exit_2(argv, expected, capsys):

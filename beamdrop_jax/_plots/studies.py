@@ -46,14 +46,26 @@ def plot_placement(scene, result, landscape, *, axes=None):
     _draw_housing(ax2, scene, result.placement, color="tab:red", lw=4,
                   label=f"after: {float(result.value) / 1e6:.1f} MPa")
     ax2.plot(0, 0, "k+", ms=10, label="centre of mass G")
+    if getattr(result, "region", None) is not None:
+        from matplotlib.patches import Rectangle
+
+        (lo1, lo2), (hi1, hi2) = np.asarray(result.region) * 1e3
+        ax2.add_patch(Rectangle((lo1, lo2), hi1 - lo1, hi2 - lo2, fill=False, ls=":", lw=1.5, color="tab:blue",
+                                label="region kept for the centre"))
+    if getattr(result, "max_angle", None) is not None:
+        ax2.plot([], [], " ", label=f"tilt kept within {np.degrees(result.max_angle):g} deg")
     ax2.set_aspect("equal")
-    ax2.set_xlabel("e1 (mm)")
-    ax2.set_ylabel("e2 (mm)")
+    ax2.set_xlabel("e1: along the housing's width from G (mm)")
+    ax2.set_ylabel("e2: along its height (mm)")
     ax2.set_title(f"Board placement, {result.objective} objective")
     ax2.legend(fontsize=8, loc="upper right")
     W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
     ax2.set_xlim(-0.6 * W, 0.6 * W)
     ax2.set_ylim(-0.6 * H - 0.3 * H, 0.6 * H + 0.3 * H)
+    fig.text(0.01, 0.005, "The objective counts the support jumps normal to the board in the plane of the model: "
+             "motion along the board and out of the plane are left out.", fontsize=8, color="0.2", va="bottom")
+    if fig.get_layout_engine() is not None:
+        fig.get_layout_engine().set(rect=(0, 0.05, 1, 0.95))
     return fig
 
 

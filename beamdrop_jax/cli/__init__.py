@@ -39,6 +39,7 @@ from ._helpers import (
     _int_at_least,
     _int_in,
     _microstrain,
+    _region,
     _scene,
     _scene_arg,
     _version,
@@ -141,6 +142,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--starts", type=_int_at_least(1), default=4, help="optimiser starts (default 4)")
     p.add_argument("--margin", type=_float_in(0.0, 1e4, "mm"), default=0.0, metavar="MM",
                    help="clearance between the board's ends and the housing's edges, mm (default 0)")
+    p.add_argument("--region", type=_region, metavar="C1LO,C2LO,C1HI,C2HI",
+                   help="keep the board's centre in this box, mm along the housing's width (c1) and height (c2) "
+                        "from its centre G, e.g. -10,-5,10,5 (default: anywhere the board fits)")
+    p.add_argument("--max-angle", type=_float_in(0.0, 90.0, "deg"), metavar="DEG",
+                   help="largest tilt of the board from the housing's width, deg in [0, 90] (0: level; default: "
+                        "as far as it fits)")
     modes(p, "8")
     p.set_defaults(func=cmd_optimize)
 

@@ -188,18 +188,26 @@ def cmd_optimize(args, output):
     scene = _scene(args)
     orientations = np.radians(args.orientations)
     numerics = _numerics(args, n_modes=args.n_modes or 8)
+    max_angle = None if args.max_angle is None else math.radians(args.max_angle)
     res = bd.optimize_placement(scene, orientations, args.heights, objective=args.objective, alpha=args.alpha,
                                 numerics=numerics, steps=args.steps, starts=args.starts, margin=args.margin * 1e-3,
-                                progress=not args.json)
-    output.summary(res.summary(scene), f"Board placement: {args.objective} peak stress over {res.n_drops} drops "
-                                       f"({res.n_evaluations} evaluations with gradients)")
+                                progress=not args.json, region=args.region, max_angle=max_angle)
+    summary = res.summary(scene)
+    leaves_out = summary.pop("objective_leaves_out")
+    output.summary(summary, f"Board placement: {args.objective} peak stress over {res.n_drops} drops "
+                            f"({res.n_evaluations} evaluations with gradients)")
+    output.report["objective_leaves_out"] = leaves_out
+    output.note(f"the objective leaves out {leaves_out}")
+    if args.region is None and args.max_angle is None:
+        output.note("the board may go anywhere it fits in the housing; --region and --max-angle keep it where you "
+                    "can put it")
     history = [{"step": i, "objective_MPa": v / 1e6, "c1_mm": p[0] * 1e3, "c2_mm": p[1] * 1e3,
                 "angle_deg": math.degrees(p[2])}
                for i, (v, p) in enumerate(zip(np.asarray(res.history).tolist(), np.asarray(res.path).tolist()))]
     output.wrote(write_csv(history, Path(args.out) / "optimize-history.csv"))
     if not args.no_plots:
         landscape = bd.placement_landscape(scene, res, orientations, args.heights, alpha=args.alpha,
-                                           numerics=numerics, margin=args.margin * 1e-3)
+                                           numerics=numerics, margin=args.margin * 1e-3, region=args.region)
         _save(output, bd.plot_placement(scene, res, landscape), "placement.png", args)
 
 

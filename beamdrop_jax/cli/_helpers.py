@@ -33,6 +33,14 @@ def _version() -> str:
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # Values that start with a minus and a digit are values, not options: --region -10,-5,10,5 and
+        # --orientations -90:90 as well as -3 (no option of the command starts with a digit).
+        import re
+
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
+
     def error(self, message):
         sys.stderr.write(f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
         sys.exit(2)
@@ -106,6 +114,22 @@ def _degrees_list(text):
         return [number(v) for v in text.split(",")]
     except argparse.ArgumentTypeError as err:
         raise argparse.ArgumentTypeError(f"{text!r}: {err} (write 'a,b,c' or 'low:high:count' in degrees)") from None
+
+
+def _region(text):
+    """'c1lo,c2lo,c1hi,c2hi' in mm -> ((c1lo, c2lo), (c1hi, c2hi)) in m."""
+    number = _float_in(-1e4, 1e4, "mm")
+    parts = text.split(",")
+    if len(parts) != 4:
+        raise argparse.ArgumentTypeError(f"{text!r}: write four numbers in mm, 'c1lo,c2lo,c1hi,c2hi' (e.g. "
+                                         "-10,-5,10,5)")
+    try:
+        c1lo, c2lo, c1hi, c2hi = (number(v) for v in parts)
+    except argparse.ArgumentTypeError as err:
+        raise argparse.ArgumentTypeError(f"{text!r}: {err} (write 'c1lo,c2lo,c1hi,c2hi')") from None
+    if c1lo > c1hi or c2lo > c2hi:
+        raise argparse.ArgumentTypeError(f"{text!r}: each low must be <= its high (c1lo <= c1hi, c2lo <= c2hi)")
+    return ((c1lo * 1e-3, c2lo * 1e-3), (c1hi * 1e-3, c2hi * 1e-3))
 
 
 def _scene_arg(text):
