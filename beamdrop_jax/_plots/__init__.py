@@ -3,11 +3,13 @@
 from .drop import (
     plot_deflected_board as plot_deflected_board,
     plot_flat_landing as plot_flat_landing,
+    plot_gauge_history as plot_gauge_history,
     plot_housing_impact as plot_housing_impact,
     plot_impact as plot_impact,
     plot_impacts as plot_impacts,
     plot_plate_strain as plot_plate_strain,
     plot_scene as plot_scene,
+    plot_sensitivity as plot_sensitivity,
     plot_stress_map as plot_stress_map,
 )
 from .studies import (

@@ -294,7 +294,16 @@ def plot_plate_strain(strain_map, response, plate, *, axes=None):
     ax, hx = axes
     fig = ax.figure
     x, y = np.asarray(strain_map.x) * 1e3, np.asarray(strain_map.y) * 1e3
-    mesh = ax.pcolormesh(x, y, np.asarray(strain_map.strain).T * 1e6, shading="gouraud", cmap="magma")
+    strain = np.asarray(strain_map.strain) * 1e6
+    holes = ~np.isfinite(strain)
+    if np.any(holes) and not np.all(holes):
+        # Inside the mount discs the map has no value; shaded as it is, the grid cells around each disc would show
+        # as white square tabs beyond the drawn circle. Each hole takes its nearest value (the disc covers it).
+        from scipy.ndimage import distance_transform_edt
+
+        nearest = distance_transform_edt(holes, return_distances=False, return_indices=True)
+        strain = strain[tuple(nearest)]
+    mesh = ax.pcolormesh(x, y, strain.T, shading="gouraud", cmap="magma")
     fig.colorbar(mesh, ax=ax, label="largest principal surface strain (microstrain)")
     if plate.mounts is not None:
         r = float(plate.mount_radius) * 1e3
@@ -303,21 +312,24 @@ def plot_plate_strain(strain_map, response, plate, *, axes=None):
             ax.plot(mx, my, "+", color="tab:cyan", ms=8)
         ax.plot([], [], "+", color="tab:cyan", label=f"mounts (discs r = {r:g} mm not searched)")
     peak = response.peak
-    ax.plot(float(peak.x) * 1e3, float(peak.y) * 1e3, "*", ms=16, mfc="yellow", mec="k",
+    ax.plot(float(peak.x) * 1e3, float(peak.y) * 1e3, "*", ms=13, mfc="yellow", mec="k", zorder=4,
             label=f"peak {float(peak.strain) * 1e6:.0f} microstrain at t = {float(peak.t) * 1e3:.3g} ms")
     gauges = response.gauges
-    if gauges is not None:
-        ax.plot(np.asarray(gauges.x) * 1e3, np.asarray(gauges.y) * 1e3, "s", ms=7, mfc="none", mec="tab:green",
-                mew=2, label="gauges")
+    if gauges is not None:  # open squares around the star where a gauge sits on the peak, numbered
+        gx, gy = np.asarray(gauges.x) * 1e3, np.asarray(gauges.y) * 1e3
+        ax.plot(gx, gy, "s", ms=19, mfc="none", mec="lime", mew=2.5, zorder=5, label="gauges (numbered)")
+        for i, (px, py) in enumerate(zip(gx, gy)):
+            ax.annotate(f"{i + 1}", (px, py), xytext=(11, 7), textcoords="offset points", color="lime", fontsize=10,
+                        weight="bold", zorder=5)
     ax.set_aspect("equal")
     ax.set_xlabel("x from end A (mm)")
     ax.set_ylabel("y across the width (mm)")
     ax.set_title(f"Surface strain at t = {float(strain_map.t) * 1e3:.3g} ms")
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.18), fontsize=8, ncol=2)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.18), fontsize=8, ncol=2, markerscale=0.7)
     if gauges is not None:
         t = np.asarray(gauges.t) * 1e3
         for i in range(len(np.asarray(gauges.x))):
-            label = f"gauge ({float(gauges.x[i]) * 1e3:.1f}, {float(gauges.y[i]) * 1e3:.1f}) mm"
+            label = f"gauge {i + 1} ({float(gauges.x[i]) * 1e3:.1f}, {float(gauges.y[i]) * 1e3:.1f}) mm"
             line, = hx.plot(t, np.asarray(gauges.strain[i]) * 1e6, lw=1.2, label=label)
             hx.plot(float(gauges.peak_time[i]) * 1e3, float(gauges.peak_strain[i]) * 1e6, "o", color=line.get_color())
         hx.set_xlabel("t from the impact (ms)")
@@ -327,4 +339,65 @@ def plot_plate_strain(strain_map, response, plate, *, axes=None):
         hx.legend(fontsize=8)
     else:
         hx.set_axis_off()
+    return fig
+
+
+def plot_gauge_history(t, strain, x, *, modulus=None, ax=None):
+    """A strain gauge's reading over time: `strain` (-) at times `t` (s) at `x` (m from end A), on the board's
+    normal-side face (+ tension), its largest magnitude marked; with the board's Young's `modulus` (Pa) a second
+    axis gives the bending stress (MPa)."""
+    fig, ax = _axes(ax, (7.5, 4.4))
+    t_ms, micro = np.asarray(t) * 1e3, np.asarray(strain) * 1e6
+    ax.plot(t_ms, micro, color="tab:blue", lw=1.5, label="strain")
+    ax.axhline(0.0, color="0.6", lw=0.8)
+    i = int(np.argmax(np.abs(micro)))
+    ax.plot(t_ms[i], micro[i], "o", color="tab:red", ms=7,
+            label=f"largest |strain| {abs(micro[i]):.4g} microstrain at t = {t_ms[i]:.3g} ms")
+    ax.set_xlabel("time after impact (ms)")
+    ax.set_ylabel("strain (microstrain), normal-side face; + tension")
+    if modulus is not None:
+        E = float(modulus) * 1e-12  # MPa per microstrain
+        ax.secondary_yaxis("right", functions=(lambda e: e * E, lambda s: s / E)).set_ylabel("bending stress (MPa)")
+    ax.set_title(f"Strain gauge at x = {float(x) * 1e3:.4g} mm from end A", fontsize=11)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+    return fig
+
+
+def plot_sensitivity(rows, quantity: str = "stress", *, top: int = 15, ax=None):
+    """A tornado chart of the elasticities (% change of the peak per % change of each scene field), largest
+    magnitude on top, positive to the right; `rows` as `sensitivities` returns them (`Sensitivity` records or
+    their `row()` dicts). Fields with no elasticity (value 0) are named under the chart."""
+    get = (lambda r, k: r[k]) if rows and isinstance(rows[0], dict) else (lambda r, k: getattr(r, k))
+    def effect(r):  # None: no elasticity (a field at 0); 0: none to round-off
+        e = get(r, "elasticity")
+        return None if e is None else (0.0 if abs(e) < 1e-9 else e)
+
+    shown = sorted((r for r in rows if effect(r)), key=lambda r: -abs(effect(r)))
+    shown, rest = shown[:top], shown[top:]
+    fig, ax = _axes(ax, (7.5, 0.32 * max(len(shown), 4) + 2.2))
+    names = [get(r, "field") for r in shown][::-1]
+    values = np.array([get(r, "elasticity") for r in shown][::-1], float)
+    colours = ["tab:red" if v > 0 else "tab:blue" for v in values]
+    ax.barh(range(len(values)), values, color=colours, height=0.7)
+    ax.set_yticks(range(len(values)), names, fontsize=8)
+    ax.axvline(0.0, color="0.3", lw=0.8)
+    span = max(float(np.abs(values).max()) if values.size else 1.0, 1e-12)
+    for i, v in enumerate(values):
+        ax.text(v + (0.01 if v >= 0 else -0.01) * span, i, f"{v:+.3g}", va="center", ha="left" if v >= 0 else "right",
+                fontsize=7.5)
+    ax.set_xlim(-1.25 * span if np.any(values < 0) else -0.05 * span, 1.25 * span if np.any(values > 0) else 0.05 * span)
+    ax.set_xlabel(f"elasticity of the peak {quantity}: % change per % change of the field")
+    ax.set_title(f"What the peak {quantity} is most sensitive to (red: raising the field raises it)", fontsize=10)
+    zero = [get(r, "field") for r in rows if effect(r) is None]
+    none = [get(r, "field") for r in rows if effect(r) == 0.0]
+    notes = ([f"{len(rest)} smaller elasticities not drawn"] if rest else []) + (
+        [f"no effect on the peak in this model (|elasticity| < 1e-9): {', '.join(none)}"] if none else []) + (
+        [f"no elasticity (the field is 0; see its derivative in the table): {', '.join(zero)}"] if zero else [])
+    if notes:
+        import textwrap
+
+        ax.annotate("\n".join(textwrap.fill(t, 110) for t in notes), (0, 0), xycoords="axes fraction",
+                    xytext=(0, -34), textcoords="offset points", va="top", fontsize=7.5, color="0.3")
+    ax.grid(axis="x", alpha=0.3)
     return fig

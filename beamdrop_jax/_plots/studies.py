@@ -69,24 +69,89 @@ def plot_placement(scene, result, landscape, *, axes=None):
     return fig
 
 
-def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None):
-    """Left: peak against drop orientation (polar). Right: exceedance curve P(peak > s) with the limit marked."""
+def _quiet_radial_labels(ax, theta, r, rmax):
+    """Radial tick labels on the ray where the points reach least (an empty sector first), and only those clear of
+    the points within 12 deg of it: none collides with the curve."""
+    bins = np.linspace(0.0, 2 * np.pi, 73)
+    where = np.digitize(np.mod(theta, 2 * np.pi), bins) - 1
+    reach = np.zeros(72)
+    np.maximum.at(reach, np.clip(where, 0, 71), r)
+    lo, hi = np.radians(ax.get_thetamin()), np.radians(ax.get_thetamax())
+    centres = (bins[:-1] + bins[1:]) / 2
+    inside = (centres >= lo - 1e-9) & (centres <= hi + 1e-9) if hi - lo < 2 * np.pi - 1e-9 else np.ones(72, bool)
+    angle = centres[np.flatnonzero(inside)[np.argmin(reach[inside])]]
+    near = np.abs(np.angle(np.exp(1j * (theta - angle)))) < np.radians(12)
+    band = (r[near].min() - 0.07 * rmax, r[near].max() + 0.07 * rmax) if np.any(near) else (np.inf, -np.inf)
+    ticks = [t for t in ax.get_yticks() if 0 < t <= rmax]
+    ax.set_yticks(ticks, ["" if band[0] <= t <= band[1] else f"{t:g}" for t in ticks])
+    ax.set_rlabel_position(np.degrees(angle))
+    ax.set_ylim(0, rmax)
+
+
+def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None, distribution=None,
+                    varied: str | None = None):
+    """Left: peak against drop orientation (polar; the radius is the peak), coloured by the other field that varies
+    (height or contact duration) where one does, with the limit's circle; against the varied field when the
+    orientation is fixed. Right: exceedance curve P(peak > s) with the limit marked. The title says what varied:
+    `varied` (text), or the `distribution` (`DropDistribution`) the drops came from."""
     import matplotlib.pyplot as plt
 
+    names = {"orientation": ("orientation", "deg", 180 / np.pi), "height": ("drop height", "m", 1.0),
+             "duration": ("contact duration", "ms", 1e3), "spin": ("spin", "rad/s", 1.0),
+             "horizontal_speed": ("horizontal speed", "m/s", 1.0), "friction": ("friction", "", 1.0),
+             "restitution": ("restitution", "", 1.0)}
+    paths = {"orientation": "drop", "height": "drop", "spin": "drop", "horizontal_speed": "drop",
+             "friction": "contact", "restitution": "contact", "duration": "contact"}
+    valid = np.asarray(result.valid)
+    n = valid.shape[0]
+
+    def sampled(name):
+        v = np.asarray(getattr(getattr(result.samples, paths[name]), name))
+        return np.broadcast_to(v, (n,))[valid] if v.ndim else None  # None: fixed
+
+    changing = [k for k in names if sampled(k) is not None and np.ptp(sampled(k)) > 0]
+    polar = "orientation" in changing
     if axes is None:
-        fig = plt.figure(figsize=(12, 4.8), layout="constrained")
-        axes = (fig.add_subplot(1, 2, 1, projection="polar"), fig.add_subplot(1, 2, 2))
+        fig = plt.figure(figsize=(12, 5.2), layout="constrained")
+        axes = (fig.add_subplot(1, 2, 1, projection="polar" if polar else None), fig.add_subplot(1, 2, 2))
     ax1, ax2 = axes
     fig = ax1.figure
     unit, scale = {"stress": ("MPa", 1e-6), "strain": ("microstrain", 1e6), "deflection": ("mm", 1e3)}[quantity]
-    valid = np.asarray(result.valid)
     values = np.asarray(getattr(result, f"peak_{quantity}"))[valid] * scale
-    orient = np.broadcast_to(np.asarray(result.samples.drop.orientation), valid.shape)[valid]
-    dots = ax1.scatter(orient, values, s=2, alpha=0.4, c=values, cmap="viridis", rasterized=True)
-    fig.colorbar(dots, ax=ax1, pad=0.12, shrink=0.8, label=f"peak {quantity} ({unit})")
-    ax1.set_rlabel_position(112.5)  # radial labels in the quiet sector, off the curve
-    ax1.tick_params(axis="y", labelsize=7, labelcolor="0.35")
-    ax1.set_title(f"peak {quantity} ({unit}; radius) against drop orientation (deg)", pad=18, fontsize=10)
+    others = [k for k in changing if k != "orientation"]
+    x_name = "orientation" if polar else (others[0] if others else None)
+    colour_name = next((k for k in others if k != x_name), None)
+    colour = dict(c=sampled(colour_name) * names[colour_name][2], cmap="viridis") if colour_name else dict(
+        color="tab:blue")
+    x = sampled(x_name) if x_name else np.zeros(values.shape)
+    shown = x if polar or x_name is None else x * names[x_name][2]  # a polar axis takes radians
+    dots = ax1.scatter(shown, values, s=2, alpha=0.5, rasterized=True, **colour)
+    if colour_name:
+        what, cunit, _ = names[colour_name]
+        fig.colorbar(dots, ax=ax1, pad=0.12 if polar else 0.02, shrink=0.8, label=f"{what} ({cunit})")
+    top = max(float(values.max()) if values.size else 1.0, 0.0 if limit is None else limit * scale) * 1.08
+    if polar:
+        lo, hi = np.degrees(x.min()), np.degrees(x.max())
+        if hi - lo < 359.0:
+            ax1.set_thetamin(lo)
+            ax1.set_thetamax(hi)
+        if limit is not None:
+            circle = np.linspace(np.radians(lo), np.radians(hi), 361) if hi - lo < 359.0 else np.linspace(
+                0.0, 2 * np.pi, 361)
+            ax1.plot(circle, np.full(circle.shape, limit * scale), "--", color="tab:red", lw=1.5,
+                     label=f"limit {limit * scale:.4g} {unit}")
+            ax1.legend(loc="lower left", bbox_to_anchor=(-0.15, -0.12), fontsize=8)
+        ax1.tick_params(axis="y", labelsize=7, labelcolor="0.3")
+        _quiet_radial_labels(ax1, x, values, top)
+        ax1.set_title(f"peak {quantity} ({unit}, the radius) against drop orientation (deg)", pad=18, fontsize=10)
+    else:
+        if limit is not None:
+            ax1.axhline(limit * scale, color="tab:red", ls="--", lw=1.5, label=f"limit {limit * scale:.4g} {unit}")
+            ax1.legend(fontsize=8)
+        ax1.set_xlabel(f"{names[x_name][0]} ({names[x_name][1]})" if x_name else "")
+        ax1.set_ylabel(f"peak {quantity} ({unit})")
+        ax1.set_title(f"peak {quantity} against {names[x_name][0] if x_name else 'the drop'}", fontsize=10)
+        ax1.grid(alpha=0.3)
     ordered = np.sort(values)
     ccdf = 1.0 - np.arange(1, ordered.size + 1) / ordered.size
     ax2.semilogy(ordered[:-1], ccdf[:-1], color="tab:blue", lw=2, label=f"{ordered.size} valid drops")
@@ -99,6 +164,11 @@ def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None):
     ax2.set_title("Exceedance curve (complementary CDF)")
     ax2.grid(True, which="both", alpha=0.3)
     ax2.legend(fontsize=8)
+    varied = varied if varied is not None or distribution is None else distribution.describe()
+    if varied is not None:
+        import textwrap
+
+        fig.suptitle(textwrap.fill(f"{n} random drops: {varied}", 130), fontsize=10)
     return fig
 
 

@@ -127,7 +127,8 @@ class CampaignResult:
                  + ("" if limit_strain is None else f" {f'> {limit_strain * 1e6:g} ue':>11}")]
         ties = len(self.worst_drops) > 1
         for r in self.rows(limit_strain):
-            mark = (" <- worst (tie)" if ties else " <- worst") if r["worst"] else ("  " + r["note"] if r["note"] else "")
+            mark = ((" <- worst (tie)" if ties else " <- worst") if r["worst"]
+                    else ("  " + r["note"] if r["note"] else ""))
             verdict = "" if limit_strain is None else f" {verdicts[r['over_limit']]:>11}"
             lines.append(f"  {r['drop']:>2}  {r['label']:<36} {r['height_m']:>10.3f} {r['orientation_deg']:>11.2f} "
                          f"{r['repetitions']:>4} {r['peak_stress_MPa']:>12.2f} {r['peak_strain_microstrain']:>11.1f} "

@@ -82,7 +82,8 @@ def _check_fits(scene: Scene, margin: float, region=None, max_angle=None):
         need = np.maximum(0.0, np.maximum(box[0], -box[1]))
         reach = (W / 2 - margin - L / 2, H / 2 - margin)  # the farthest the centre goes, level (e1) or at all (e2)
         if need[0] > reach[0] or need[1] > reach[1]:
-            raise ValueError(f"region = {box.tolist()} m keeps the board's centre {need[0]:g} m along e1 and {need[1]:g} "
+            raise ValueError(f"region = {box.tolist()} m keeps the board's centre {need[0]:g} m along e1 and "
+                             f"{need[1]:g} "
                              f"m along e2 from G, but a level board reaches {reach[0]:g} and {reach[1]:g} m inside the "
                              "housing (with the margin)")
     placement = scene.placement

@@ -1,5 +1,6 @@
 """One function per `beamdrop` command: call the library, print, save files. No physics here."""
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -120,6 +121,10 @@ def cmd_drop(args, output):
         peak = int(np.argmax(np.abs(np.asarray(fields.strain[0]))))
         output.summary({"gauge_x_mm": args.gauge, "gauge_peak_strain_microstrain": rows[peak]["strain_microstrain"],
                         "gauge_peak_time_ms": rows[peak]["t_ms"]}, "Gauge (signed strain of the normal-side face)")
+        if not args.no_plots:
+            fig = bd.plot_gauge_history(fields.t, fields.strain[0], args.gauge * 1e-3,
+                                        modulus=scene.board.youngs_modulus)
+            _save(output, fig, f"gauge_{args.gauge:g}mm.png", args)
     if not args.no_plots:
         fields = bd.response_fields(scene, numerics)
         _save(output, bd.plot_scene(scene, res), "scene.png", args)
@@ -177,6 +182,8 @@ def cmd_sensitivity(args, output):
         output.say(f"  {r['field']:<30} {r['value']:>12.6g} {r['unit']:<7} {r['derivative']:>17.6g} "
                    f"{r['derivative_unit']:<20} {e:>10}")
     output.wrote(write_csv(table, Path(args.out) / f"sensitivity-{args.quantity}.csv"))
+    if not args.no_plots:
+        _save(output, bd.plot_sensitivity(rows, args.quantity), f"sensitivity-{args.quantity}.png", args)
 
 
 def cmd_optimize(args, output):
@@ -212,8 +219,6 @@ def cmd_optimize(args, output):
 
 
 def cmd_montecarlo(args, output):
-    import dataclasses
-
     import jax
     import numpy as np
 
@@ -221,30 +226,54 @@ def cmd_montecarlo(args, output):
     from .._common.report import write_csv_columns
 
     scene = _scene(args)
+    # Each range maps onto the distribution (uniform); a single value fixes the field in the scene.
+    spec, fixed, fixed_text = {}, {}, []
+    for name, path, given, scale, unit in (("orientation", "drop.orientation", args.orientations, math.pi / 180, "deg"),
+                                           ("height", "drop.height", args.heights, 1.0, "m"),
+                                           ("duration", "contact.duration", args.durations, 1e-3, "ms")):
+        if given is None:
+            spec[name] = None
+        elif given[0] < given[1]:
+            spec[name] = ("uniform", given[0] * scale, given[1] * scale)
+        else:
+            spec[name], fixed[path] = None, given[0] * scale
+            fixed_text.append(f"{'contact ' * (name == 'duration')}{name} fixed at {given[0]:g} {unit}")
+    if not any(spec.values()):
+        raise ValueError("nothing varies: give a range LO:HI to --orientations, --heights or --durations (every drop "
+                         "would be the same; 'beamdrop drop' computes one)")
+    if fixed:
+        scene = scene.replace(**fixed)
+    distribution = bd.DropDistribution(**spec)
     numerics = bd.Numerics(n_modes=args.n_modes) if args.n_modes else None
     if args.max_impacts:
         numerics = (dataclasses.replace(numerics, max_impacts=args.max_impacts) if numerics
-                    else bd.montecarlo_numerics(scene, max_impacts=args.max_impacts))
+                    else bd.montecarlo_numerics(scene, distribution, max_impacts=args.max_impacts))
     # A chunk larger than -n would only be padding (the drops and results do not depend on the chunk size).
     batch_size = args.batch_size and min(args.batch_size, args.n)
-    res = bd.montecarlo(scene, args.n, jax.random.PRNGKey(args.seed), numerics=numerics,
+    res = bd.montecarlo(scene, args.n, jax.random.PRNGKey(args.seed), distribution=distribution, numerics=numerics,
                         batch_size=batch_size, progress=not args.json)
     limit = args.allowable_microstrain * 1e-6
+    varied = distribution.describe().replace("every other field", "; ".join(fixed_text + ["every other field"]))
+    output.report["varied"] = varied
     output.summary(res.report(limit, "strain"),
-                   f"{res.n} random drops (orientation uniform on [0, 360) deg); drops outside the model are left "
-                   "out of every statistic")
+                   f"{res.n} random drops ({varied}); drops outside the model are left out of every statistic")
     # In float64 whatever the run's precision, and in degrees as math.degrees rounds: the numbers the CSV held when
     # it was written a dict per drop.
     f64 = lambda v: np.asarray(v, dtype=np.float64)  # noqa: E731
     orientation = np.broadcast_to(f64(res.samples.drop.orientation), (res.n,))
     masks, which = np.unique(np.asarray(res.flags), return_inverse=True)
     names = np.array(["|".join(bd.Flag.describe(m)) for m in masks.tolist()], dtype=object)
-    columns = {"orientation_deg": orientation * (180.0 / math.pi), "peak_stress_MPa": f64(res.peak_stress) / 1e6,
-               "peak_strain_microstrain": f64(res.peak_strain) * 1e6,
-               "peak_deflection_mm": f64(res.peak_deflection) * 1e3, "flags": names[which.reshape(-1)]}
+    columns = {"orientation_deg": orientation * (180.0 / math.pi)}
+    if spec["height"]:
+        columns["height_m"] = f64(res.samples.drop.height)
+    if spec["duration"]:
+        columns["contact_duration_ms"] = f64(res.samples.contact.duration) * 1e3
+    columns |= {"peak_stress_MPa": f64(res.peak_stress) / 1e6, "peak_strain_microstrain": f64(res.peak_strain) * 1e6,
+                "peak_deflection_mm": f64(res.peak_deflection) * 1e3, "flags": names[which.reshape(-1)]}
     output.wrote(write_csv_columns(columns, Path(args.out) / "montecarlo-drops.csv", progress=not args.json))
     if not args.no_plots:
-        _save(output, bd.plot_montecarlo(res, limit=limit, quantity="strain"), "montecarlo.png", args)
+        fig = bd.plot_montecarlo(res, limit=limit, quantity="strain", varied=varied)
+        _save(output, fig, "montecarlo.png", args)
 
 
 def cmd_bench(args, output):

@@ -116,6 +116,25 @@ def _degrees_list(text):
         raise argparse.ArgumentTypeError(f"{text!r}: {err} (write 'a,b,c' or 'low:high:count' in degrees)") from None
 
 
+def _range(unit, lo, hi, lo_open=False):
+    """'low:high' -> (low, high), drawn uniformly; 'value' -> (value, value), fixed; in `unit`, within [lo, hi]."""
+    number = _float_in(lo, hi, unit, lo_open=lo_open)
+
+    def parse(text):
+        parts = text.split(":")
+        if len(parts) > 2:
+            raise argparse.ArgumentTypeError(f"{text!r}: write 'low:high' (uniform) or one value (fixed), in {unit}")
+        try:
+            low, high = number(parts[0]), number(parts[-1])
+        except argparse.ArgumentTypeError as err:
+            raise argparse.ArgumentTypeError(f"{text!r}: {err} (write 'low:high' or one value)") from None
+        if low > high:
+            raise argparse.ArgumentTypeError(f"{text!r}: low {low:g} is above high {high:g} {unit}")
+        return (low, high)
+
+    return parse
+
+
 def _region(text):
     """'c1lo,c2lo,c1hi,c2hi' in mm -> ((c1lo, c2lo), (c1hi, c2hi)) in m."""
     number = _float_in(-1e4, 1e4, "mm")
@@ -223,6 +242,9 @@ def _scene_name(args) -> str:
 
 
 def _writes_files(args) -> bool:
+    """Whether the command writes into --out (created only then: `bench --latency` prints its table only)."""
+    if getattr(args, "latency", False):
+        return False
     return (not args.no_plots) or args.command in ("campaign", "sensitivity", "montecarlo", "optimize") or bool(
         getattr(args, "gauge", None)
     )
