@@ -24,6 +24,25 @@ def test_every_help_works_and_gives_units(argv, capsys):
         assert "(MPa)" in out or "microstrain" in out
 
 
+@pytest.mark.parametrize("command, words", [
+    ("drop", ["--max-modes", "Numerics.max_modes", "gauge_X_MMmm.png"]),
+    ("campaign", ["--max-modes", "--allowable-microstrain", "OVER"]),
+    ("sensitivity", ["--max-modes", "tornado chart"]),
+    ("optimize", ["--region", "C1LO,C2LO,C1HI,C2HI", "--max-angle"]),
+    ("montecarlo", ["--orientations", "--heights", "--durations", "LO:HI", "required"]),
+    ("bench", ["--latency", "no files"]),
+])
+def test_changed_commands_help_names_their_new_options(command, words, capsys):
+    """Issue 39, part 2: each changed command's help names what it now takes (bad values and misspellings of
+    them are in `test_bad_arguments_are_one_line_exit_2`)."""
+    with pytest.raises(SystemExit) as stop:
+        main([command, "--help"])
+    assert stop.value.code == 0
+    out = " ".join(capsys.readouterr().out.split())  # argparse wraps lines
+    for word in words:
+        assert word in out, (command, word)
+
+
 def test_every_option_has_help_text():
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")
