@@ -24,6 +24,25 @@ def test_every_help_works_and_gives_units(argv, capsys):
         assert "(MPa)" in out or "microstrain" in out
 
 
+@pytest.mark.parametrize("command, words", [
+    ("drop", ["--max-modes", "Numerics.max_modes", "gauge_X_MMmm.png"]),
+    ("campaign", ["--max-modes", "--allowable-microstrain", "OVER"]),
+    ("sensitivity", ["--max-modes", "tornado chart"]),
+    ("optimize", ["--region", "C1LO,C2LO,C1HI,C2HI", "--max-angle"]),
+    ("montecarlo", ["--orientations", "--heights", "--durations", "LO:HI", "required"]),
+    ("bench", ["--latency", "no files"]),
+])
+def test_changed_commands_help_names_their_new_options(command, words, capsys):
+    """Issue 39, part 2: each changed command's help names what it now takes (bad values and misspellings of
+    them are in `test_bad_arguments_are_one_line_exit_2`)."""
+    with pytest.raises(SystemExit) as stop:
+        main([command, "--help"])
+    assert stop.value.code == 0
+    out = " ".join(capsys.readouterr().out.split())  # argparse wraps lines
+    for word in words:
+        assert word in out, (command, word)
+
+
 def test_every_option_has_help_text():
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")
@@ -78,7 +97,44 @@ def one_error_line(capsys, argv, *expected):
         (["drop", "--solver", "Kvaerno5", "--method", "closed_form"], ["--solver Kvaerno5", "--method diffrax"]),
         (["drop", "--max-impacts", "51"], ["--max-impacts", "51", "[1, 50]"]),
         (["montecarlo", "--max-impacts", "0"], ["--max-impacts", "[1, 50]"]),
-        (["montecarlo", "-n", "1000000000000", "--no-plots"], ["-n 1000000000000", "memory", "valid here: -n in [1, "]),
+        (["montecarlo", "-n", "1000000000000", "--allowable-microstrain", "2000", "--no-plots"],
+         ["-n 1000000000000", "memory", "valid here: -n in [1, "]),
+        # Issue 39, part 2: the options added to reach what the notes and users ask for.
+        (["drop", "--max-modes", "3"], ["--max-modes", "[4, 64]"]),
+        (["drop", "--max-modes", "many"], ["--max-modes", "whole number"]),
+        (["drop", "--max-moeds", "32"], ["unrecognized", "did you mean --max-modes"]),
+        (["drop", "--max-modes", "32", "--n-modes", "8"], ["--n-modes", "not allowed with", "--max-modes"]),
+        (["campaign", "--standard", "ista-1a", "--max-modes", "65"], ["--max-modes", "[4, 64]"]),
+        (["sensitivity", "--max-modes", "2"], ["--max-modes", "[4, 64]"]),
+        (["campaign", "--standard", "ista-1a", "--allowable-microstrain", "0.003"],
+         ["microstrain", "not as a fraction"]),
+        (["campaign", "--standard", "ista-1a", "--allowable-microstrain", "x"],
+         ["--allowable-microstrain", "not a number"]),
+        (["campaign", "--standard", "ista-1a", "--allowable-microstrian", "3000"],
+         ["unrecognized", "did you mean --allowable-microstrain"]),
+        (["optimize", "--region", "1,2,3"], ["--region", "four numbers", "c1lo,c2lo,c1hi,c2hi"]),
+        (["optimize", "--region", "10,-5,-10,5"], ["--region", "low must be <= its high"]),
+        (["optimize", "--region", "-10,x,10,5"], ["--region", "not a number"]),
+        (["optimize", "--regoin", "-10,-5,10,5"], ["unrecognized", "did you mean --region"]),
+        (["optimize", "--max-angle", "95"], ["--max-angle", "[0, 90] deg"]),
+        (["montecarlo", "-n", "10"], ["--allowable-microstrain UE is required", "no default"]),
+        (["montecarlo", "--allowable-microstrain", "2000", "--heights", "1.5:0.5"], ["--heights", "above high"]),
+        (["montecarlo", "--allowable-microstrain", "2000", "--heights", "0:1"], ["--heights", "(0, 1000] m"]),
+        (["montecarlo", "--allowable-microstrain", "2000", "--durations", "0:1"], ["--durations", "(0, 100] ms"]),
+        (["montecarlo", "--allowable-microstrain", "2000", "--orientations", "0:90:5"], ["--orientations", "low:high"]),
+        (["montecarlo", "--allowable-microstrain", "2000", "--orientations", "abc"], ["--orientations", "not a number"]),
+        (["montecarlo", "--allowable-microstrain", "2000", "--hieghts", "1:2"], ["unrecognized", "did you mean --heights"]),
+        (["montecarlo", "--allowable-microstrain", "2000", "--orientations", "30", "--no-cache"],
+         ["nothing varies", "--orientations"]),
+        (["sensitivity", "--quantiy", "strain"], ["unrecognized", "did you mean --quantity"]),
+        (["sensitivity", "--quantity", "force"], ["--quantity", "invalid choice"]),
+        (["bench", "--latncy"], ["unrecognized", "did you mean --latency"]),
+        (["bench", "--latency", "--repeats", "0"], ["--repeats", ">= 1"]),
+        (["impact", "--lwa", "newton"], ["unrecognized", "did you mean --law"]),
+        (["impact", "--law", "hooke"], ["--law", "invalid choice"]),
+        (["drop", "--gauge", "x"], ["--gauge", "not a number"]),
+        (["optimize", "--region", "20,-5,30,5", "--no-cache"], ["board centre [0.0, 0.0] mm", "inside the region"]),
+        (["optimize", "--region", "-100,-5,-90,5", "--no-cache"], ["region", "a level board reaches"]),
     ],
 )
 def test_bad_arguments_are_one_line_exit_2(argv, expected, capsys):
@@ -91,7 +147,8 @@ def test_montecarlo_refuses_a_csv_larger_than_the_free_disk(tmp_path, monkeypatc
     from beamdrop_jax import cli
 
     monkeypatch.setattr(shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(10**9, 10**9 - 10**6, 10**6))
-    line = one_error_line(capsys, ["montecarlo", "-n", "100000", "--no-plots", "--out", str(tmp_path)],
+    line = one_error_line(capsys, ["montecarlo", "-n", "100000", "--allowable-microstrain", "2000", "--no-plots",
+                                   "--out", str(tmp_path)],
                           "-n 100000", "CSV", "on disk", str(tmp_path), "1 MB free")
     assert f"valid here: -n in [1, {10**6 // cli.CSV_ROW_BYTES}]" in line
     assert list(tmp_path.iterdir()) == []
@@ -426,7 +483,8 @@ def test_bad_inputs_stop_before_any_computation(tmp_path):
     unheld = tmp_path / "unheld.toml"
     unheld.write_text('extends = "jesd22-board"\n[plate]\nmounts = []\n')
     cases = [["drop", "--scene", ""], ["drop", "--solver", "Tsit5"], ["drop", "--scene", str(latin1)],
-             ["drop", "--scene", str(unheld)], ["montecarlo", "-n", "1000000000000"], ["drop", "--max-impacts", "51"],
+             ["drop", "--scene", str(unheld)], ["montecarlo", "-n", "1000000000000", "--allowable-microstrain", "2000"],
+             ["drop", "--max-impacts", "51"],
              ["montecarlo", "--max-impacts", "0"]]
     script = """
 import contextlib, io, json, sys, time

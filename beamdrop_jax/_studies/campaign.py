@@ -37,6 +37,10 @@ from .._response.simulate import board_response
 from .montecarlo import sample_axes
 from .standards import campaign_drops
 
+UNBENT_NOTE = ("no bending in the plane model: the velocity change runs along the board (a flat landing on a face "
+               "perpendicular to the board moves it along itself)")
+
+
 @dataclass
 class CampaignResult:
     """Peaks of every drop of a standard campaign (`stress` Pa, `strain` -, `deflection` m: arrays over `drops`,
@@ -48,6 +52,22 @@ class CampaignResult:
     strain: np.ndarray
     deflection: np.ndarray
     flags: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+
+    @property
+    def unbent(self) -> list[int]:
+        """Indices of the in-plane drops that do not bend the board in the plane model: peak stress 0 to round-off
+        (1e-9 of the campaign's largest). Their velocity change runs along the board: a flat landing on a face
+        perpendicular to it translates the board along itself."""
+        stress = np.asarray(self.stress, float)
+        if not np.any(np.isfinite(stress)):
+            return []
+        tol = 1e-9 * max(float(np.nanmax(np.abs(stress))), 1e-300)
+        return [int(i) for i in np.flatnonzero(np.isfinite(stress) & (np.abs(stress) <= tol))]
+
+    @property
+    def total_drops(self) -> int:
+        """Drops the standard asks for, repetitions included (JESD22-B111: 30 of one attitude)."""
+        return int(sum(d.repetitions for d in self.drops))
 
     @property
     def worst(self) -> int:
@@ -63,11 +83,17 @@ class CampaignResult:
         top = np.nanmax(stress)
         return [int(i) for i in np.flatnonzero(stress >= top - 1e-9 * abs(top))]
 
-    def rows(self) -> list[dict]:
-        """One dict per drop, in SI-derived engineering units (MPa, microstrain, mm, deg)."""
-        worst = set(self.worst_drops)
+    def rows(self, limit_strain: float | None = None) -> list[dict]:
+        """One dict per drop, in SI-derived engineering units (MPa, microstrain, mm, deg). The note says why a drop
+        has no number (out of the plane) or a zero one (no bending in the plane model). With `limit_strain` (a
+        fraction: 2000 microstrain is 2e-3), `over_limit` says whether the drop's peak strain exceeds it (None: not
+        judged, as the plane model does not represent the drop or does not bend the board in it)."""
+        worst, unbent = set(self.worst_drops), set(self.unbent)
         out = []
         for i, d in enumerate(self.drops):
+            note = d.note
+            if i in unbent:
+                note = "; ".join(filter(None, (note, UNBENT_NOTE)))
             out.append(
                 {
                     "drop": i + 1,
@@ -80,7 +106,9 @@ class CampaignResult:
                     "peak_strain_microstrain": float(self.strain[i]) * 1e6,
                     "peak_deflection_mm": float(self.deflection[i]) * 1e3,
                     "worst": i in worst,
-                    "note": d.note,
+                    **({} if limit_strain is None else {"over_limit": bool(self.strain[i] > limit_strain)
+                                                        if np.isfinite(self.strain[i]) and i not in unbent else None}),
+                    "note": note,
                 }
             )
         return out
@@ -90,16 +118,21 @@ class CampaignResult:
 
         return write_csv(self.rows(), path)
 
-    def table(self) -> str:
-        """The rows as an aligned text table (what `repr` and the CLI show)."""
+    def table(self, limit_strain: float | None = None) -> str:
+        """The rows as an aligned text table (what `repr` and the CLI show); with `limit_strain` (a fraction) a
+        column says which drops exceed it."""
+        verdicts = {True: "OVER", False: "ok", None: "n/a"}
         lines = [f"  {'#':>2}  {'drop':<36} {'height (m)':>10} {'angle (deg)':>11} {'reps':>4} "
-                 f"{'stress (MPa)':>12} {'strain (ue)':>11} {'defl. (mm)':>10}"]
+                 f"{'stress (MPa)':>12} {'strain (ue)':>11} {'defl. (mm)':>10}"
+                 + ("" if limit_strain is None else f" {f'> {limit_strain * 1e6:g} ue':>11}")]
         ties = len(self.worst_drops) > 1
-        for r in self.rows():
-            mark = (" <- worst (tie)" if ties else " <- worst") if r["worst"] else ("  " + r["note"] if r["note"] else "")
+        for r in self.rows(limit_strain):
+            mark = ((" <- worst (tie)" if ties else " <- worst") if r["worst"]
+                    else ("  " + r["note"] if r["note"] else ""))
+            verdict = "" if limit_strain is None else f" {verdicts[r['over_limit']]:>11}"
             lines.append(f"  {r['drop']:>2}  {r['label']:<36} {r['height_m']:>10.3f} {r['orientation_deg']:>11.2f} "
                          f"{r['repetitions']:>4} {r['peak_stress_MPa']:>12.2f} {r['peak_strain_microstrain']:>11.1f} "
-                         f"{r['peak_deflection_mm']:>10.3f}{mark}")
+                         f"{r['peak_deflection_mm']:>10.3f}{verdict}{mark}")
         return "\n".join(lines)
 
     def summary(self) -> dict:
@@ -108,7 +141,9 @@ class CampaignResult:
         return {
             "standard": self.standard,
             "drops": len(self.drops),
+            "drops_with_repetitions": self.total_drops,
             "drops_in_plane": int(np.sum(np.isfinite(np.asarray(self.stress, float)))),
+            "drops_not_bending_the_board": len(self.unbent),
             "worst_drops": [self.drops[i].label for i in worst],
             "worst_peak_stress_MPa": float(self.stress[worst[0]]) / 1e6 if worst else None,
         }

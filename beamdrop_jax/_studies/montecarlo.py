@@ -42,6 +42,18 @@ _FIELDS = {
 }
 
 
+# How `DropDistribution.describe` shows each field: its name, unit and scale from SI.
+_SHOWN = {
+    "orientation": ("orientation", " deg", 180.0 / math.pi),
+    "height": ("height", " m", 1.0),
+    "spin": ("spin", " rad/s", 1.0),
+    "horizontal_speed": ("horizontal speed", " m/s", 1.0),
+    "friction": ("friction", "", 1.0),
+    "restitution": ("restitution", "", 1.0),
+    "duration": ("contact duration", " ms", 1e3),
+}
+
+
 def _check_spec(name, spec):
     if spec is None:
         return
@@ -77,6 +89,19 @@ class DropDistribution(eqx.Module):
 
     def varied(self) -> list[str]:
         return [name for name in _FIELDS if getattr(self, name) is not None]
+
+    def describe(self) -> str:
+        """What varies and how, in engineering units: 'orientation uniform on [0, 360] deg; height uniform on
+        [0.5, 1.5] m; every other field as in the scene'."""
+        parts = []
+        for name in self.varied():
+            kind, a, b = getattr(self, name)
+            what, unit, scale = _SHOWN[name]
+            if kind == "uniform":
+                parts.append(f"{what} uniform on [{a * scale:.4g}, {b * scale:.4g}]{unit}")
+            else:
+                parts.append(f"{what} lognormal, median {a * scale:.4g}{unit}, sigma {b:.4g}")
+        return "; ".join(parts + ["every other field as in the scene"])
 
     def sample(self, scene: Scene, n: int, key) -> Scene:
         """n scenes: the varied fields get a leading axis n, the others stay as in `scene`."""

@@ -26,6 +26,7 @@ from .._studies.standards import STANDARDS
 from ._helpers import CSV_ROW_BYTES as CSV_ROW_BYTES  # named in the -n check's message
 from ._helpers import (
     MAX_IMPACTS,
+    MAX_MODES,
     QUANTITIES,
     _Output,
     _Parser,
@@ -38,6 +39,8 @@ from ._helpers import (
     _int_at_least,
     _int_in,
     _microstrain,
+    _range,
+    _region,
     _scene,
     _scene_arg,
     _version,
@@ -75,9 +78,15 @@ def build_parser() -> argparse.ArgumentParser:
                        help="do not keep compiled programs between runs (also: BEAMDROP_NO_CACHE=1)")
         return p
 
-    def modes(p, default="chosen from the scene"):
-        p.add_argument("--n-modes", type=_int_at_least(1), metavar="N",
-                       help=f"use exactly modes 1..N (default: {default})")
+    def modes(p, default="chosen from the scene", cap=False):
+        group = p.add_mutually_exclusive_group() if cap else p
+        group.add_argument("--n-modes", type=_int_at_least(1), metavar="N",
+                           help=f"use exactly modes 1..N (default: {default})")
+        if cap:
+            group.add_argument("--max-modes", type=_int_in(4, MAX_MODES), metavar="N",
+                               help=f"at most N modes where the count is chosen from the scene, N in [4, "
+                                    f"{MAX_MODES}] (default 16; Numerics.max_modes): raise it when a drop says "
+                                    "it is not converged")
 
     def impacts(p):
         p.add_argument("--max-impacts", type=_int_in(1, MAX_IMPACTS), metavar="K",
@@ -95,10 +104,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "figures")
     p.add_argument("--method", choices=["closed_form", "diffrax"], help="board response method (default closed_form)")
     p.add_argument("--solver", help="diffrax solver (Tsit5, Dopri5, Dopri8, Kvaerno5, ImplicitEuler, ...)")
-    modes(p)
+    modes(p, cap=True)
     impacts(p)
     p.add_argument("--gauge", type=_float_in(0.0, 1e5, "mm"), metavar="X_MM",
-                   help="also write the strain history at X_MM from end A (CSV: ms, microstrain, MPa)")
+                   help="also write the strain history at X_MM from end A (CSV: ms, microstrain, MPa; and a "
+                        "figure, gauge_X_MMmm.png)")
     p.set_defaults(func=cmd_drop)
 
     p = command("campaign", "a standard drop campaign (ISTA 1A/2A, MIL-STD-810H 516.8-IV, IEC 60068-2-31, "
@@ -108,14 +118,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="packaged mass for mass-dependent heights, kg (default: the housing's)")
     p.add_argument("--height", type=_float_in(0.0, 1e3, "m", lo_open=True), metavar="M",
                    help="free-fall height where the standard leaves it open, m (IEC: default 1.0)")
-    modes(p)
+    p.add_argument("--allowable-microstrain", type=_microstrain, metavar="UE",
+                   help="the board's strain limit in microstrain (your part's or supplier's figure; no default): "
+                        "each drop is marked ok or OVER, the chart shows peak strain against it")
+    modes(p, cap=True)
     impacts(p)
     p.set_defaults(func=cmd_campaign)
 
     p = command("sensitivity", "d(peak)/d(field) with units and the elasticity (%% per %%) of the peak for every "
-                               "scene field, largest first; CSV table")
+                               "scene field, largest first; CSV table and tornado chart")
     p.add_argument("--quantity", default="stress", choices=list(QUANTITIES), help="which peak (default stress)")
-    modes(p)
+    modes(p, cap=True)
     p.set_defaults(func=cmd_sensitivity)
 
     p = command("optimize", "place the board (centre in mm, angle in deg) to minimise the peak stress (MPa) over a "
@@ -131,14 +144,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--starts", type=_int_at_least(1), default=4, help="optimiser starts (default 4)")
     p.add_argument("--margin", type=_float_in(0.0, 1e4, "mm"), default=0.0, metavar="MM",
                    help="clearance between the board's ends and the housing's edges, mm (default 0)")
+    p.add_argument("--region", type=_region, metavar="C1LO,C2LO,C1HI,C2HI",
+                   help="keep the board's centre in this box, mm along the housing's width (c1) and height (c2) "
+                        "from its centre G, e.g. -10,-5,10,5 (default: anywhere the board fits)")
+    p.add_argument("--max-angle", type=_float_in(0.0, 90.0, "deg"), metavar="DEG",
+                   help="largest tilt of the board from the housing's width, deg in [0, 90] (0: level; default: "
+                        "as far as it fits)")
     modes(p, "8")
     p.set_defaults(func=cmd_optimize)
 
     p = command("montecarlo", "random drops: peak stress (MPa) and strain (microstrain) statistics, P(strain > "
-                              "limit) with a 95 %% interval; CSV of every drop, polar and exceedance figures")
+                              "limit) with a 95 %% interval; CSV of every drop, polar and exceedance figures",
+                "random drops of the scene: the orientation, and with the options below the height and the contact "
+                "duration, drawn uniformly over ranges (every other field as in the scene); peak stress (MPa) and "
+                "strain (microstrain) statistics, P(strain > limit) with a 95 %% interval; CSV of every drop, polar "
+                "and exceedance figures")
     p.add_argument("-n", type=_int_at_least(1), default=100_000, help="number of drops (default 100000)")
-    p.add_argument("--allowable-microstrain", type=_microstrain, default=2000.0, metavar="UE",
-                   help="strain limit in microstrain (default 2000, i.e. 0.2 %%)")
+    p.add_argument("--allowable-microstrain", type=_microstrain, metavar="UE",
+                   help="the board's strain limit in microstrain, required: no one figure holds for every board "
+                        "(limits depend on the board, its parts and joints, and the strain rate), so give your part's "
+                        "or supplier's")
+    p.add_argument("--orientations", type=_range("deg", -3600.0, 3600.0), default=(0.0, 360.0), metavar="LO:HI",
+                   help="drop orientations drawn uniformly on [LO, HI] deg, or one value (default 0:360)")
+    p.add_argument("--heights", type=_range("m", 0.0, 1e3, lo_open=True), metavar="LO:HI",
+                   help="drop heights drawn uniformly on [LO, HI] m, or one value (default: the scene's)")
+    p.add_argument("--durations", type=_range("ms", 0.0, 100.0, lo_open=True), metavar="LO:HI",
+                   help="contact (half-sine) durations drawn uniformly on [LO, HI] ms, or one value (default: the "
+                        "scene's)")
     p.add_argument("--seed", type=_int_at_least(0), default=0, help="random seed (default 0)")
     p.add_argument("--batch-size", type=_int_at_least(1), metavar="N", help="drops per compiled chunk")
     modes(p, "chosen from the scene")
@@ -146,12 +178,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_montecarlo)
 
     p = command("bench", "speed against accuracy (peak-stress error, seconds per drop) for every method against "
-                         "NumPy and SciPy peers, or --latency: time to first answer; JSON table and chart")
+                         "NumPy and SciPy peers, JSON table and chart; or --latency: time to first answer, printed "
+                         "(no files)")
     level = p.add_mutually_exclusive_group()
     level.add_argument("--quick", action="store_true", help="the quick set (about 5 minutes on 2 cores)")
     level.add_argument("--tiny", action="store_true", help="a smoke test of every part (seconds)")
     level.add_argument("--latency", action="store_true",
-                       help="import, first drop and first gradient in fresh processes against a bare JAX process")
+                       help="import, first drop and first gradient in fresh processes against a bare JAX process; "
+                            "prints a table (with --json, an object) and writes no files")
     p.add_argument("--repeats", type=_int_at_least(1), default=5, help="repeats for --latency (default 5)")
     p.set_defaults(func=cmd_bench)
     parser.commands = sub.choices
@@ -167,6 +201,10 @@ def _parse(argv) -> argparse.Namespace:
         options = [o for action in command._actions for o in action.option_strings]
         near = difflib.get_close_matches(extra[0].split("=")[0], options, n=1)
         command.error(f"unrecognized arguments: {' '.join(extra)}" + (f"; did you mean {near[0]}?" if near else ""))
+    if args.command == "montecarlo" and args.allowable_microstrain is None:  # checked after a misspelt option
+        parser.commands[args.command].error(
+            "--allowable-microstrain UE is required: the board's strain limit in microstrain (your part's or "
+            "supplier's; there is no default)")
     if getattr(args, "solver", None) and args.method != "diffrax":
         parser.commands[args.command].error(
             f"--solver {args.solver} needs --method diffrax (--method {args.method or 'closed_form'}"

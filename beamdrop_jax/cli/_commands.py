@@ -1,11 +1,27 @@
 """One function per `beamdrop` command: call the library, print, save files. No physics here."""
 
+import dataclasses
 import json
 import math
 from pathlib import Path
 from .._studies.standards import STANDARDS
-from ._helpers import (QUANTITIES, _numerics, _save, _scene, _scene_name)
+from ._helpers import QUANTITIES, _cli_note, _numerics, _save, _scene, _scene_name, _tidy_positions
 
+
+
+# The faces as campaigns number them (ISTA): 1 top (+e2), 2 right (+e1), 3 bottom (-e2), 4 left (-e1); the face
+# that lands flat at orientation k x 90 deg.
+FACES = {1: "top, +e2", 2: "right, +e1", 3: "bottom, -e2", 4: "left, -e1"}
+FLAT_FACE = {0: 3, 1: 4, 2: 1, 3: 2}
+
+
+def _landing(scene, res) -> str:
+    """'onto a corner', or 'flat onto face 3 (bottom, -e2)' when the housing lands flat (two corners at once)."""
+    hit = getattr(res, "housing", res)  # a Response or a HousingImpact
+    if hit is None or not bool(hit.flat):
+        return "onto a corner"
+    face = FLAT_FACE[round(float(scene.drop.orientation) / (math.pi / 2)) % 4]
+    return f"flat onto face {face} ({FACES[face]})"
 
 
 def cmd_impact(args, output):
@@ -25,10 +41,10 @@ def cmd_impact(args, output):
     }
     if bool(hit.flat):
         summary["contact_mode"] = "flat landing (translation)"
-    output.summary(summary, f"Impact of {_scene_name(args)} ({args.law} restitution; S tangential, C normal)")
+    output.summary(summary, f"Impact of {_scene_name(args)} {_landing(scene, hit)} ({args.law} restitution; S "
+                            "tangential, C normal)")
     if not args.no_plots:
-        fig = bd.plot_impact(hit.B, hit.v0, scene.contact.friction, scene.contact.restitution, law=args.law)
-        _save(output, fig, "impact.png", args)
+        _save(output, bd.plot_housing_impact(scene, hit, law=args.law), "impact.png", args)
 
 
 def cmd_drop(args, output):
@@ -53,8 +69,9 @@ def cmd_drop(args, output):
     res = bd.simulate(scene, numerics, gauges=gauges)
     tau = float(scene.contact.duration)
     output.report["scene"] = args.scene or "default"
-    output.summary(res.summary(),
-                   f"Drop of {_scene_name(args)}: {float(scene.drop.height):g} m onto a corner at "
+    size_mm = 1e3 * max(float(scene.board.length), float(getattr(scene.board, "width", 0.0)))
+    output.summary(_tidy_positions(res.summary(), size_mm),
+                   f"Drop of {_scene_name(args)}: {float(scene.drop.height):g} m {_landing(scene, res)} at "
                    f"{math.degrees(float(scene.drop.orientation)):.1f} deg, "
                    + (f"half-sine contact {tau * 1e3:g} ms" if tau > 0 else "ideal impulse (contact duration 0)")
                    + board_text)
@@ -75,8 +92,7 @@ def cmd_drop(args, output):
                        f"{r['approach_speed_m_per_s']:>15.4f} {'{:.4f}, {:.4f}'.format(*r['impulse_Ns']):>20} "
                        f"{'{:.3f}, {:.3f}'.format(*r['support_jumps_m_per_s']):>17}")
     for note in bd.response_notes(scene, res):
-        output.say(f"  note: {note}")
-        output.report.setdefault("notes", []).append(note)
+        output.note(_cli_note(note, numerics))
     if plate:
         from .._common.report import summary_text, write_csv
 
@@ -105,6 +121,10 @@ def cmd_drop(args, output):
         peak = int(np.argmax(np.abs(np.asarray(fields.strain[0]))))
         output.summary({"gauge_x_mm": args.gauge, "gauge_peak_strain_microstrain": rows[peak]["strain_microstrain"],
                         "gauge_peak_time_ms": rows[peak]["t_ms"]}, "Gauge (signed strain of the normal-side face)")
+        if not args.no_plots:
+            fig = bd.plot_gauge_history(fields.t, fields.strain[0], args.gauge * 1e-3,
+                                        modulus=scene.board.youngs_modulus)
+            _save(output, fig, f"gauge_{args.gauge:g}mm.png", args)
     if not args.no_plots:
         fields = bd.response_fields(scene, numerics)
         _save(output, bd.plot_scene(scene, res), "scene.png", args)
@@ -115,15 +135,30 @@ def cmd_drop(args, output):
 
 def cmd_campaign(args, output):
     import beamdrop_jax as bd
+    from .._studies import campaign as campaign_module
 
     scene = _scene(args)
     result = bd.campaign(scene, args.standard, _numerics(args), mass=args.mass, height=args.height)
-    output.report |= {"standard": args.standard, "drops": result.rows()}
+    limit = None if args.allowable_microstrain is None else args.allowable_microstrain * 1e-6
+    rows = result.rows(limit)
+    output.report |= {"standard": args.standard, "drops": rows}
     output.say(f"{args.standard}: {STANDARDS[args.standard]}")
-    output.say(result.table())
+    output.say(result.table(limit))
+    if limit is not None:
+        over = [r["label"] for r in rows if r["over_limit"]]
+        judged = sum(r["over_limit"] is not None for r in rows)
+        output.report["drops_over_limit"] = over
+        output.say(f"{'FAIL' if over else 'PASS'}: {len(over)} of {judged} drops judged exceed "
+                   f"{args.allowable_microstrain:g} microstrain" + (f" ({', '.join(over)})" if over else "")
+                   + (f"; {len(rows) - judged} not judged (n/a: not represented or not bent in the plane model)"
+                      if judged < len(rows) else ""))
+    if result.unbent:
+        output.note(f"{len(result.unbent)} drops show 0: {campaign_module.UNBENT_NOTE}")
     output.wrote(result.to_csv(Path(args.out) / f"campaign-{args.standard}.csv"))
     if not args.no_plots:
-        _save(output, bd.plot_campaign(result, scene=args.scene or "default"), f"campaign-{args.standard}.png", args)
+        fig = bd.plot_campaign(result, scene=args.scene or "default", limit=limit,
+                               quantity="stress" if limit is None else "strain")
+        _save(output, fig, f"campaign-{args.standard}.png", args)
 
 
 def cmd_sensitivity(args, output):
@@ -147,6 +182,8 @@ def cmd_sensitivity(args, output):
         output.say(f"  {r['field']:<30} {r['value']:>12.6g} {r['unit']:<7} {r['derivative']:>17.6g} "
                    f"{r['derivative_unit']:<20} {e:>10}")
     output.wrote(write_csv(table, Path(args.out) / f"sensitivity-{args.quantity}.csv"))
+    if not args.no_plots:
+        _save(output, bd.plot_sensitivity(rows, args.quantity), f"sensitivity-{args.quantity}.png", args)
 
 
 def cmd_optimize(args, output):
@@ -158,24 +195,30 @@ def cmd_optimize(args, output):
     scene = _scene(args)
     orientations = np.radians(args.orientations)
     numerics = _numerics(args, n_modes=args.n_modes or 8)
+    max_angle = None if args.max_angle is None else math.radians(args.max_angle)
     res = bd.optimize_placement(scene, orientations, args.heights, objective=args.objective, alpha=args.alpha,
                                 numerics=numerics, steps=args.steps, starts=args.starts, margin=args.margin * 1e-3,
-                                progress=not args.json)
-    output.summary(res.summary(scene), f"Board placement: {args.objective} peak stress over {res.n_drops} drops "
-                                       f"({res.n_evaluations} evaluations with gradients)")
+                                progress=not args.json, region=args.region, max_angle=max_angle)
+    summary = res.summary(scene)
+    leaves_out = summary.pop("objective_leaves_out")
+    output.summary(summary, f"Board placement: {args.objective} peak stress over {res.n_drops} drops "
+                            f"({res.n_evaluations} evaluations with gradients)")
+    output.report["objective_leaves_out"] = leaves_out
+    output.note(f"the objective leaves out {leaves_out}")
+    if args.region is None and args.max_angle is None:
+        output.note("the board may go anywhere it fits in the housing; --region and --max-angle keep it where you "
+                    "can put it")
     history = [{"step": i, "objective_MPa": v / 1e6, "c1_mm": p[0] * 1e3, "c2_mm": p[1] * 1e3,
                 "angle_deg": math.degrees(p[2])}
                for i, (v, p) in enumerate(zip(np.asarray(res.history).tolist(), np.asarray(res.path).tolist()))]
     output.wrote(write_csv(history, Path(args.out) / "optimize-history.csv"))
     if not args.no_plots:
         landscape = bd.placement_landscape(scene, res, orientations, args.heights, alpha=args.alpha,
-                                           numerics=numerics, margin=args.margin * 1e-3)
+                                           numerics=numerics, margin=args.margin * 1e-3, region=args.region)
         _save(output, bd.plot_placement(scene, res, landscape), "placement.png", args)
 
 
 def cmd_montecarlo(args, output):
-    import dataclasses
-
     import jax
     import numpy as np
 
@@ -183,30 +226,54 @@ def cmd_montecarlo(args, output):
     from .._common.report import write_csv_columns
 
     scene = _scene(args)
+    # Each range maps onto the distribution (uniform); a single value fixes the field in the scene.
+    spec, fixed, fixed_text = {}, {}, []
+    for name, path, given, scale, unit in (("orientation", "drop.orientation", args.orientations, math.pi / 180, "deg"),
+                                           ("height", "drop.height", args.heights, 1.0, "m"),
+                                           ("duration", "contact.duration", args.durations, 1e-3, "ms")):
+        if given is None:
+            spec[name] = None
+        elif given[0] < given[1]:
+            spec[name] = ("uniform", given[0] * scale, given[1] * scale)
+        else:
+            spec[name], fixed[path] = None, given[0] * scale
+            fixed_text.append(f"{'contact ' * (name == 'duration')}{name} fixed at {given[0]:g} {unit}")
+    if not any(spec.values()):
+        raise ValueError("nothing varies: give a range LO:HI to --orientations, --heights or --durations (every drop "
+                         "would be the same; 'beamdrop drop' computes one)")
+    if fixed:
+        scene = scene.replace(**fixed)
+    distribution = bd.DropDistribution(**spec)
     numerics = bd.Numerics(n_modes=args.n_modes) if args.n_modes else None
     if args.max_impacts:
         numerics = (dataclasses.replace(numerics, max_impacts=args.max_impacts) if numerics
-                    else bd.montecarlo_numerics(scene, max_impacts=args.max_impacts))
+                    else bd.montecarlo_numerics(scene, distribution, max_impacts=args.max_impacts))
     # A chunk larger than -n would only be padding (the drops and results do not depend on the chunk size).
     batch_size = args.batch_size and min(args.batch_size, args.n)
-    res = bd.montecarlo(scene, args.n, jax.random.PRNGKey(args.seed), numerics=numerics,
+    res = bd.montecarlo(scene, args.n, jax.random.PRNGKey(args.seed), distribution=distribution, numerics=numerics,
                         batch_size=batch_size, progress=not args.json)
     limit = args.allowable_microstrain * 1e-6
+    varied = distribution.describe().replace("every other field", "; ".join(fixed_text + ["every other field"]))
+    output.report["varied"] = varied
     output.summary(res.report(limit, "strain"),
-                   f"{res.n} random drops (orientation uniform on [0, 360) deg); drops outside the model are left "
-                   "out of every statistic")
+                   f"{res.n} random drops ({varied}); drops outside the model are left out of every statistic")
     # In float64 whatever the run's precision, and in degrees as math.degrees rounds: the numbers the CSV held when
     # it was written a dict per drop.
     f64 = lambda v: np.asarray(v, dtype=np.float64)  # noqa: E731
     orientation = np.broadcast_to(f64(res.samples.drop.orientation), (res.n,))
     masks, which = np.unique(np.asarray(res.flags), return_inverse=True)
     names = np.array(["|".join(bd.Flag.describe(m)) for m in masks.tolist()], dtype=object)
-    columns = {"orientation_deg": orientation * (180.0 / math.pi), "peak_stress_MPa": f64(res.peak_stress) / 1e6,
-               "peak_strain_microstrain": f64(res.peak_strain) * 1e6,
-               "peak_deflection_mm": f64(res.peak_deflection) * 1e3, "flags": names[which.reshape(-1)]}
+    columns = {"orientation_deg": orientation * (180.0 / math.pi)}
+    if spec["height"]:
+        columns["height_m"] = f64(res.samples.drop.height)
+    if spec["duration"]:
+        columns["contact_duration_ms"] = f64(res.samples.contact.duration) * 1e3
+    columns |= {"peak_stress_MPa": f64(res.peak_stress) / 1e6, "peak_strain_microstrain": f64(res.peak_strain) * 1e6,
+                "peak_deflection_mm": f64(res.peak_deflection) * 1e3, "flags": names[which.reshape(-1)]}
     output.wrote(write_csv_columns(columns, Path(args.out) / "montecarlo-drops.csv", progress=not args.json))
     if not args.no_plots:
-        _save(output, bd.plot_montecarlo(res, limit=limit, quantity="strain"), "montecarlo.png", args)
+        fig = bd.plot_montecarlo(res, limit=limit, quantity="strain", varied=varied)
+        _save(output, fig, "montecarlo.png", args)
 
 
 def cmd_bench(args, output):

@@ -14,6 +14,8 @@ from pathlib import Path
 # orientation). Each pair of impacts is a term of the compiled search (its size and compile time grow as K^2: on 2
 # cores K = 3, 20, 50 compile in 6, 14, 54 s and take 0.3, 0.5, 1.3 GB).
 MAX_IMPACTS = 50
+# --max-modes: a plate's grid grows as modes^3 (its time grid as modes^2); 64 modes take seconds on 2 cores.
+MAX_MODES = 64
 # What a Monte-Carlo drop costs, measured on `montecarlo -n 2000000` (float64): 113 bytes of memory per drop
 # without figures and 240 with them, over 0.5 GB for the process itself; 75 bytes of CSV per drop.
 DROP_BYTES, DROP_BYTES_PLOTTED, PROCESS_BYTES, CSV_ROW_BYTES = 120, 250, 600 << 20, 76
@@ -31,6 +33,14 @@ def _version() -> str:
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # Values that start with a minus and a digit are values, not options: --region -10,-5,10,5 and
+        # --orientations -90:90 as well as -3 (no option of the command starts with a digit).
+        import re
+
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
+
     def error(self, message):
         sys.stderr.write(f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
         sys.exit(2)
@@ -106,6 +116,41 @@ def _degrees_list(text):
         raise argparse.ArgumentTypeError(f"{text!r}: {err} (write 'a,b,c' or 'low:high:count' in degrees)") from None
 
 
+def _range(unit, lo, hi, lo_open=False):
+    """'low:high' -> (low, high), drawn uniformly; 'value' -> (value, value), fixed; in `unit`, within [lo, hi]."""
+    number = _float_in(lo, hi, unit, lo_open=lo_open)
+
+    def parse(text):
+        parts = text.split(":")
+        if len(parts) > 2:
+            raise argparse.ArgumentTypeError(f"{text!r}: write 'low:high' (uniform) or one value (fixed), in {unit}")
+        try:
+            low, high = number(parts[0]), number(parts[-1])
+        except argparse.ArgumentTypeError as err:
+            raise argparse.ArgumentTypeError(f"{text!r}: {err} (write 'low:high' or one value)") from None
+        if low > high:
+            raise argparse.ArgumentTypeError(f"{text!r}: low {low:g} is above high {high:g} {unit}")
+        return (low, high)
+
+    return parse
+
+
+def _region(text):
+    """'c1lo,c2lo,c1hi,c2hi' in mm -> ((c1lo, c2lo), (c1hi, c2hi)) in m."""
+    number = _float_in(-1e4, 1e4, "mm")
+    parts = text.split(",")
+    if len(parts) != 4:
+        raise argparse.ArgumentTypeError(f"{text!r}: write four numbers in mm, 'c1lo,c2lo,c1hi,c2hi' (e.g. "
+                                         "-10,-5,10,5)")
+    try:
+        c1lo, c2lo, c1hi, c2hi = (number(v) for v in parts)
+    except argparse.ArgumentTypeError as err:
+        raise argparse.ArgumentTypeError(f"{text!r}: {err} (write 'c1lo,c2lo,c1hi,c2hi')") from None
+    if c1lo > c1hi or c2lo > c2hi:
+        raise argparse.ArgumentTypeError(f"{text!r}: each low must be <= its high (c1lo <= c1hi, c2lo <= c2hi)")
+    return ((c1lo * 1e-3, c2lo * 1e-3), (c1hi * 1e-3, c2hi * 1e-3))
+
+
 def _scene_arg(text):
     if not text.strip():  # not the default scene: an unset variable in a script (--scene "$SCENE") would be silent
         from .._scene.file import embedded_scenes
@@ -141,8 +186,49 @@ class _Output:
     def summary(self, summary: dict, title: str):
         from .._common.report import plain, summary_text
 
-        self.report.update(plain(summary))
-        self.say(summary_text(summary, title))
+        summary = plain(summary)
+        self.report.update(summary)
+        # For people, one value is a number, not a one-element tuple "(3424.92)".
+        self.say(summary_text({k: v[0] if isinstance(v, list) and len(v) == 1 else v for k, v in summary.items()},
+                              title))
+
+    def note(self, text):
+        self.say(f"  note: {text}")
+        self.report.setdefault("notes", []).append(text)
+
+
+# Positions closer to 0 than this fraction of the board's size are round-off of a symmetric answer, printed 0.
+POSITION_RTOL = 1e-6
+
+
+def _tidy_positions(summary: dict, size_mm: float) -> dict:
+    """`summary` with every position in mm (keys ending _x_mm, _y_mm) within `POSITION_RTOL` x `size_mm` of 0
+    set to 0: a peak on the centre line computed as -1.5e-08 mm is on the centre line."""
+    from .._common.report import plain
+
+    summary = plain(summary)
+    tol = POSITION_RTOL * size_mm
+    for key, value in summary.items():
+        if key.endswith(("_x_mm", "_y_mm")) and isinstance(value, float) and abs(value) < tol:
+            summary[key] = 0.0
+    return summary
+
+
+def _cli_note(note: str, numerics) -> str:
+    """A library note (which names the Python API's fields) as the command line's user needs it: the option that
+    does it, with the field in brackets."""
+    n = numerics.max_modes
+    for api, cli in (
+        ("raise Numerics.max_modes", f"raise --max-modes (Numerics.max_modes, {n} here; at most {MAX_MODES})"),
+        ("raise Numerics.pulse_modes (modes up to f_k x duration >= 2 by default)",
+         "give more modes with --n-modes N (or, from Python, raise Numerics.pulse_modes: modes up to f_k x "
+         "duration >= 2 by default)"),
+        ("give Contact.duration a physical value", "give the scene file's [contact] duration a physical value"),
+        ('(Numerics(method="diffrax", stretching=True))',
+         '(from Python: Numerics(method="diffrax", stretching=True); no command-line option)'),
+    ):
+        note = note.replace(api, cli)
+    return note
 
 
 def _scene(args):
@@ -156,6 +242,9 @@ def _scene_name(args) -> str:
 
 
 def _writes_files(args) -> bool:
+    """Whether the command writes into --out (created only then: `bench --latency` prints its table only)."""
+    if getattr(args, "latency", False):
+        return False
     return (not args.no_plots) or args.command in ("campaign", "sensitivity", "montecarlo", "optimize") or bool(
         getattr(args, "gauge", None)
     )
@@ -238,7 +327,8 @@ def _save(output, fig, name, args):
 def _numerics(args, **overrides):
     import beamdrop_jax as bd
 
-    kw = {k: getattr(args, k) for k in ("method", "solver", "n_modes", "max_impacts") if getattr(args, k, None)}
+    kw = {k: getattr(args, k) for k in ("method", "solver", "n_modes", "max_modes", "max_impacts")
+          if getattr(args, k, None)}
     kw.update(overrides)
     return bd.Numerics(**kw)
 

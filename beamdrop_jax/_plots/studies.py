@@ -1,0 +1,360 @@
+"""The figures of studies over many drops: placement, Monte-Carlo, campaigns, benchmarks."""
+
+import numpy as np
+
+from .._common.checks import on_host
+from .._scene.containers import board_ends
+from .._studies.standards import STANDARDS
+from .common import _axes
+
+
+def _draw_housing(ax, scene, placement, **style):
+    from matplotlib.patches import Rectangle
+
+
+    W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
+    ax.add_patch(Rectangle((-W / 2, -H / 2), W, H, fill=False, lw=1.5, color="0.3"))
+    ends = board_ends(on_host(placement), float(scene.board.length)) * 1e3
+    ax.plot(ends[:, 0], ends[:, 1], **style)
+
+
+def plot_placement(scene, result, landscape, *, axes=None):
+    """Left: the objective over board-centre positions at the optimal angle, with the optimiser's path.
+    Right: the housing (body axes, mm) with the board before and after."""
+    import matplotlib.pyplot as plt
+
+    if axes is None:
+        fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), layout="constrained")
+    ax1, ax2 = axes
+    fig = ax1.figure
+    c1, c2, values = landscape
+    mesh = ax1.pcolormesh(np.asarray(c1) * 1e3, np.asarray(c2) * 1e3, np.asarray(values).T / 1e6,
+                          shading="auto", cmap="viridis")
+    fig.colorbar(mesh, ax=ax1, label=f"{result.objective} peak stress over drops (MPa)")
+    path = np.asarray(result.path)
+    ax1.plot(path[:, 0] * 1e3, path[:, 1] * 1e3, "w.-", lw=1, ms=3, label="optimiser path (best start)")
+    ax1.plot(path[0, 0] * 1e3, path[0, 1] * 1e3, "wo", ms=7, mfc="none")
+    ax1.plot(path[-1, 0] * 1e3, path[-1, 1] * 1e3, "r*", ms=14, label="optimum")
+    ax1.set_xlabel("board centre c1 along the width (mm)")
+    ax1.set_ylabel("board centre c2 along the height (mm)")
+    ax1.set_title(f"Objective over the centre at the optimum's angle {np.degrees(float(result.placement.angle)):.1f} "
+                  f"deg\n(the path also turns: {np.degrees(path[0, 2]):.1f} -> {np.degrees(path[-1, 2]):.1f} deg; "
+                  "drawn at its centres)", fontsize=9)
+    ax1.legend(fontsize=8, loc="lower right")
+    _draw_housing(ax2, scene, scene.placement, color="tab:gray", lw=4, ls="--",
+                  label=f"before: {float(result.initial_value) / 1e6:.1f} MPa")
+    _draw_housing(ax2, scene, result.placement, color="tab:red", lw=4,
+                  label=f"after: {float(result.value) / 1e6:.1f} MPa")
+    ax2.plot(0, 0, "k+", ms=10, label="centre of mass G")
+    if getattr(result, "region", None) is not None:
+        from matplotlib.patches import Rectangle
+
+        (lo1, lo2), (hi1, hi2) = np.asarray(result.region) * 1e3
+        ax2.add_patch(Rectangle((lo1, lo2), hi1 - lo1, hi2 - lo2, fill=False, ls=":", lw=1.5, color="tab:blue",
+                                label="region kept for the centre"))
+    if getattr(result, "max_angle", None) is not None:
+        ax2.plot([], [], " ", label=f"tilt kept within {np.degrees(result.max_angle):g} deg")
+    ax2.set_aspect("equal")
+    ax2.set_xlabel("e1: along the housing's width from G (mm)")
+    ax2.set_ylabel("e2: along its height (mm)")
+    ax2.set_title(f"Board placement, {result.objective} objective")
+    ax2.legend(fontsize=8, loc="upper right")
+    W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
+    ax2.set_xlim(-0.6 * W, 0.6 * W)
+    ax2.set_ylim(-0.6 * H - 0.3 * H, 0.6 * H + 0.3 * H)
+    fig.text(0.01, 0.005, "The objective counts the support jumps normal to the board in the plane of the model: "
+             "motion along the board and out of the plane are left out.", fontsize=8, color="0.2", va="bottom")
+    if fig.get_layout_engine() is not None:
+        fig.get_layout_engine().set(rect=(0, 0.05, 1, 0.95))
+    return fig
+
+
+def _quiet_radial_labels(ax, theta, r, rmax):
+    """Radial tick labels on the ray where the points reach least (an empty sector first), and only those clear of
+    the points within 12 deg of it: none collides with the curve."""
+    bins = np.linspace(0.0, 2 * np.pi, 73)
+    where = np.digitize(np.mod(theta, 2 * np.pi), bins) - 1
+    reach = np.zeros(72)
+    np.maximum.at(reach, np.clip(where, 0, 71), r)
+    lo, hi = np.radians(ax.get_thetamin()), np.radians(ax.get_thetamax())
+    centres = (bins[:-1] + bins[1:]) / 2
+    inside = (centres >= lo - 1e-9) & (centres <= hi + 1e-9) if hi - lo < 2 * np.pi - 1e-9 else np.ones(72, bool)
+    angle = centres[np.flatnonzero(inside)[np.argmin(reach[inside])]]
+    near = np.abs(np.angle(np.exp(1j * (theta - angle)))) < np.radians(12)
+    band = (r[near].min() - 0.07 * rmax, r[near].max() + 0.07 * rmax) if np.any(near) else (np.inf, -np.inf)
+    ticks = [t for t in ax.get_yticks() if 0 < t <= rmax]
+    ax.set_yticks(ticks, ["" if band[0] <= t <= band[1] else f"{t:g}" for t in ticks])
+    ax.set_rlabel_position(np.degrees(angle))
+    ax.set_ylim(0, rmax)
+
+
+def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None, distribution=None,
+                    varied: str | None = None):
+    """Left: peak against drop orientation (polar; the radius is the peak), coloured by the other field that varies
+    (height or contact duration) where one does, with the limit's circle; against the varied field when the
+    orientation is fixed. Right: exceedance curve P(peak > s) with the limit marked. The title says what varied:
+    `varied` (text), or the `distribution` (`DropDistribution`) the drops came from."""
+    import matplotlib.pyplot as plt
+
+    names = {"orientation": ("orientation", "deg", 180 / np.pi), "height": ("drop height", "m", 1.0),
+             "duration": ("contact duration", "ms", 1e3), "spin": ("spin", "rad/s", 1.0),
+             "horizontal_speed": ("horizontal speed", "m/s", 1.0), "friction": ("friction", "", 1.0),
+             "restitution": ("restitution", "", 1.0)}
+    paths = {"orientation": "drop", "height": "drop", "spin": "drop", "horizontal_speed": "drop",
+             "friction": "contact", "restitution": "contact", "duration": "contact"}
+    valid = np.asarray(result.valid)
+    n = valid.shape[0]
+
+    def sampled(name):
+        v = np.asarray(getattr(getattr(result.samples, paths[name]), name))
+        return np.broadcast_to(v, (n,))[valid] if v.ndim else None  # None: fixed
+
+    changing = [k for k in names if sampled(k) is not None and np.ptp(sampled(k)) > 0]
+    polar = "orientation" in changing
+    if axes is None:
+        fig = plt.figure(figsize=(12, 5.2), layout="constrained")
+        axes = (fig.add_subplot(1, 2, 1, projection="polar" if polar else None), fig.add_subplot(1, 2, 2))
+    ax1, ax2 = axes
+    fig = ax1.figure
+    unit, scale = {"stress": ("MPa", 1e-6), "strain": ("microstrain", 1e6), "deflection": ("mm", 1e3)}[quantity]
+    values = np.asarray(getattr(result, f"peak_{quantity}"))[valid] * scale
+    others = [k for k in changing if k != "orientation"]
+    x_name = "orientation" if polar else (others[0] if others else None)
+    colour_name = next((k for k in others if k != x_name), None)
+    colour = dict(c=sampled(colour_name) * names[colour_name][2], cmap="viridis") if colour_name else dict(
+        color="tab:blue")
+    x = sampled(x_name) if x_name else np.zeros(values.shape)
+    shown = x if polar or x_name is None else x * names[x_name][2]  # a polar axis takes radians
+    dots = ax1.scatter(shown, values, s=2, alpha=0.5, rasterized=True, **colour)
+    if colour_name:
+        what, cunit, _ = names[colour_name]
+        fig.colorbar(dots, ax=ax1, pad=0.12 if polar else 0.02, shrink=0.8, label=f"{what} ({cunit})")
+    top = max(float(values.max()) if values.size else 1.0, 0.0 if limit is None else limit * scale) * 1.08
+    if polar:
+        lo, hi = np.degrees(x.min()), np.degrees(x.max())
+        if hi - lo < 359.0:
+            ax1.set_thetamin(lo)
+            ax1.set_thetamax(hi)
+        if limit is not None:
+            circle = np.linspace(np.radians(lo), np.radians(hi), 361) if hi - lo < 359.0 else np.linspace(
+                0.0, 2 * np.pi, 361)
+            ax1.plot(circle, np.full(circle.shape, limit * scale), "--", color="tab:red", lw=1.5,
+                     label=f"limit {limit * scale:.4g} {unit}")
+            ax1.legend(loc="lower left", bbox_to_anchor=(-0.15, -0.12), fontsize=8)
+        ax1.tick_params(axis="y", labelsize=7, labelcolor="0.3")
+        _quiet_radial_labels(ax1, x, values, top)
+        ax1.set_title(f"peak {quantity} ({unit}, the radius) against drop orientation (deg)", pad=18, fontsize=10)
+    else:
+        if limit is not None:
+            ax1.axhline(limit * scale, color="tab:red", ls="--", lw=1.5, label=f"limit {limit * scale:.4g} {unit}")
+            ax1.legend(fontsize=8)
+        ax1.set_xlabel(f"{names[x_name][0]} ({names[x_name][1]})" if x_name else "")
+        ax1.set_ylabel(f"peak {quantity} ({unit})")
+        ax1.set_title(f"peak {quantity} against {names[x_name][0] if x_name else 'the drop'}", fontsize=10)
+        ax1.grid(alpha=0.3)
+    ordered = np.sort(values)
+    ccdf = 1.0 - np.arange(1, ordered.size + 1) / ordered.size
+    ax2.semilogy(ordered[:-1], ccdf[:-1], color="tab:blue", lw=2, label=f"{ordered.size} valid drops")
+    if limit is not None:
+        p, (lo, hi), k = result.exceedance(limit, quantity)
+        ax2.axvline(limit * scale, color="tab:red", ls="--",
+                    label=f"limit {limit * scale:.4g} {unit}: P = {p:.3g} (95 % CI {lo:.3g}-{hi:.3g})")
+    ax2.set_xlabel(f"peak {quantity} ({unit})")
+    ax2.set_ylabel("exceedance probability P(peak > value)")
+    ax2.set_title("Exceedance curve (complementary CDF)")
+    ax2.grid(True, which="both", alpha=0.3)
+    ax2.legend(fontsize=8)
+    varied = varied if varied is not None or distribution is None else distribution.describe()
+    if varied is not None:
+        import textwrap
+
+        fig.suptitle(textwrap.fill(f"{n} random drops: {varied}", 130), fontsize=10)
+    return fig
+
+
+def plot_campaign(result, *, ax=None, limit: float | None = None, scene: str | None = None,
+                  quantity: str = "stress"):
+    """Bar chart of a `CampaignResult`: the peak `quantity` ("stress" in MPa or "strain" in microstrain) of every
+    drop, coloured by attitude, every drop tied for the worst outlined; a drop that does not bend the board in the
+    plane model is labelled 0 with the reason, one the plane cannot represent n/a, both explained under the chart;
+    `limit` (Pa, or a strain fraction) draws the allowable with the drops over it marked; `scene` names the scene
+    in the title."""
+    import textwrap
+
+    import matplotlib.patches as mpatches
+
+    n = len(result.drops)
+    fig, ax = _axes(ax, figsize=(max(6.5, 0.42 * n + 2.5) + 1.6, 5.6))
+    colours = {"face": "tab:blue", "edge": "tab:orange", "corner": "tab:green", "board": "tab:purple"}
+    unit, scale = {"stress": ("MPa", 1e-6), "strain": ("microstrain", 1e6)}[quantity]
+    values = np.asarray(getattr(result, quantity), float) * scale
+    bars = ax.bar(range(n), np.nan_to_num(values), color=[colours[d.attitude] for d in result.drops], width=0.7)
+    worst = result.worst_drops
+    top = float(np.nanmax(values)) if worst else 1.0
+    top = max(top if top > 0 else 1.0, 0.0 if limit is None else limit * scale)
+    for i in worst:
+        bars[i].set_edgecolor("black")
+        bars[i].set_linewidth(2.0)
+    unbent = set(result.unbent)
+    for i in range(n):
+        if not np.isfinite(values[i]):
+            ax.text(i, 0.02 * top, "n/a: out of the plane", ha="center", va="bottom", rotation=90, fontsize=8.5,
+                    color="0.15")
+        elif i in unbent:
+            ax.text(i, 0.02 * top, "0: no bending", ha="center", va="bottom", rotation=90, fontsize=8.5, color="0.15")
+        elif values[i] < 0.01 * top:  # a bar too short to see: say its value
+            ax.text(i, 0.02 * top, f"{values[i]:.2g}", ha="center", va="bottom", fontsize=8)
+    if worst:
+        tie = f" ({len(worst)} drops tie)" if len(worst) > 1 else ""
+        ax.annotate(f"worst: {values[worst[0]]:.4g} {unit}{tie}", (worst[0], values[worst[0]]), xytext=(0, 6),
+                    textcoords="offset points", ha="left", fontsize=9)
+    handles = [mpatches.Patch(color=c, label=a) for a, c in colours.items()
+               if any(d.attitude == a for d in result.drops)]
+    if limit is not None:
+        judged = [i for i in range(n) if np.isfinite(values[i]) and i not in unbent]
+        over = [i for i in judged if values[i] > limit * scale]
+        handles.append(ax.axhline(limit * scale, color="tab:red", ls="--", lw=1.5,
+                                  label=f"limit {limit * scale:g} {unit}:\n{len(over)} of {len(judged)} drops "
+                                        f"judged are over ({'FAIL' if over else 'PASS'})"))
+        for i in over:
+            bars[i].set_hatch("///")
+            bars[i].set_edgecolor("tab:red")
+        if over:
+            handles.append(mpatches.Patch(facecolor="white", edgecolor="tab:red", hatch="///", label="over the limit"))
+    # Labels whole, on two lines where long (JESD22's "board-level half-sine 1500 g 0.5 ms").
+    ax.set_xticks(range(n), [textwrap.fill(d.label, 22) for d in result.drops], rotation=60 if n > 1 else 0,
+                  ha="right" if n > 1 else "center", fontsize=8)
+    ax.set_xlim(-0.6, n - 0.4)
+    ax.set_ylabel(f"peak bending {quantity} ({unit})")
+    ax.set_ylim(0, 1.2 * top)
+    name = STANDARDS.get(result.standard, result.standard).split(":")[0].split(" (")[0]
+    heights = sorted({round(d.height, 4) for d in result.drops if np.isfinite(d.height)})
+    where = (f"from {', '.join(f'{h:g}' for h in heights)} m" if heights else "of a board-level half-sine at both "
+             "supports")
+    total = result.total_drops
+    count = f"{total} drop{'s' if total != 1 else ''}" + (f" ({n} attitudes)" if total != n and n > 1 else "")
+    # One line per part, each broken only at its commas: the standard's name, then the drops.
+    width = int(14 * fig.get_figwidth())
+    lines = []
+    for part in (name, f"{count} {where}" + (f", scene {scene}" if scene else "")):
+        line = ""
+        for piece in part.split(", "):
+            if line and len(line) + len(piece) + 2 > width:
+                lines.append(line + ",")
+                line = piece
+            else:
+                line = f"{line}, {piece}" if line else piece
+        lines.append(line)
+    ax.set_title("\n".join(lines), fontsize=10)
+    ax.legend(handles=handles, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the bars
+    notes = []
+    if unbent:
+        notes.append("0: the velocity change runs along the board, which the plane model does not bend (a flat "
+                     "landing on a face perpendicular to the board moves it along itself)")
+    if not np.all(np.isfinite(values)):
+        notes.append("n/a: the velocity change is perpendicular to the plane of the model (faces 5 and 6), not "
+                     "represented in 2-D")
+    if notes:
+        text = "\n".join(textwrap.fill(t, int(15 * fig.get_figwidth())) for t in notes)
+        fig.text(0.01, 0.01, text, fontsize=8, va="bottom", ha="left", color="0.2")
+        room = (text.count("\n") + 1) * 0.14 / fig.get_figheight() + 0.02  # 0.14 in a line
+        if fig.get_layout_engine() is not None:
+            fig.get_layout_engine().set(rect=(0, room, 1, 1 - room))
+    return fig
+
+
+def plot_bench(rows, *, ax=None):
+    """Log-log chart of max relative error of the peak stress against seconds per drop, the Pareto front of each
+    workload marked (rows as `run_bench` returns them; open markers: drops whose contact duration varies; half-filled:
+    clattering drops, up to 3 impacts each)."""
+    fig, ax = _axes(ax, (8.0, 5.5))
+    floor = 1e-16
+    groups = {}
+    for r in rows:
+        groups.setdefault((r["method"], r.get("workload", "fixed duration")), []).append(r)
+    styles = {}  # one marker and colour per method, filled for the fixed duration, open where it varies
+    for (method, workload), rs in groups.items():
+        marker, colour = styles.setdefault(method, ("osD^vP*Xh<>"[len(styles) % 11], f"C{len(styles) % 10}"))
+        other = workload != "fixed duration"
+        fill = dict(mfc="none") if workload.startswith("duration") else dict(fillstyle="left") if other else {}
+        ax.loglog([r["seconds_per_drop"] for r in rs], [max(r["max_error"], floor) for r in rs], marker, ms=7,
+                  color=colour, alpha=0.8, label=method + (f" ({workload})" if other else ""), **fill)
+    for workload, style in (("fixed duration", "k-"), ("duration U[0.2, 1] ms", "k--"), ("up to 3 impacts", "k:")):
+        front = sorted((r for r in rows if r.get("pareto") and r.get("workload", "fixed duration") == workload),
+                       key=lambda r: r["seconds_per_drop"])
+        if len(front) > 1:
+            ax.loglog([r["seconds_per_drop"] for r in front], [max(r["max_error"], floor) for r in front], style,
+                      lw=1, label=f"Pareto front ({workload})")
+    ax.axhline(0.01, color="tab:red", ls=":", lw=1, label="1 % error")
+    ax.set_xlabel("seconds per drop (median, batched where possible)")
+    ax.set_ylabel("max relative error of peak stress vs converged reference")
+    ax.set_title("Speed against accuracy on random drops of the default scene")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="best")
+    return fig
+
+
+def plot_stability(study: dict):
+    """The stability map: four panels from `stability_study`."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 2, figsize=(13, 10), layout="constrained")
+    ax = axes[0, 0]
+    any_failed = False
+    for solver in sorted({r["solver"] for r in study["stiffness"]}):
+        rs = [r for r in study["stiffness"] if r["solver"] == solver]
+        ax.loglog([r["top_frequency_hz"] for r in rs], [r["steps"] for r in rs], "o-",
+                  label=f"{solver} (rtol {rs[0]['rtol']:g})")
+        for r in rs:
+            if r["failed"]:
+                any_failed = True
+                ax.plot(r["top_frequency_hz"], r["steps"], "rx", ms=12)
+    ax.set_xlabel("frequency of the highest mode kept (Hz)")
+    ax.set_ylabel("solver steps over the window")
+    ax.set_title("Stiffness: steps grow with the top mode" + (" (x: max_steps hit)" if any_failed else ""),
+                 fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+
+    ax = axes[0, 1]
+    for solver in sorted({r["solver"] for r in study["tolerance"]}):
+        for f32, style in ((False, "o-"), (True, "s--")):
+            rs = [r for r in study["tolerance"] if r["solver"] == solver and r["float32"] == f32]
+            ok = [r for r in rs if np.isfinite(r["error"]) and not r["flags"]]
+            failed = [r for r in rs if r not in ok]
+            if ok:
+                line, = ax.loglog([r["rtol"] for r in ok], [max(r["error"], 1e-16) for r in ok], style,
+                                  label=f"{solver} {'f32' if f32 else 'f64'}")
+                colour = line.get_color()
+            if failed:
+                ax.loglog([r["rtol"] for r in failed], [1.0] * len(failed), "x", ms=10, mew=2,
+                          color=colour if ok else "tab:red",
+                          label=f"{solver} {'f32' if f32 else 'f64'}: failed (flagged)")
+    ax.set_xlabel("diffrax rtol")
+    ax.set_ylabel("peak-stress error against the closed form (x at 1: failed)")
+    ax.set_title("Tolerance: float32 floors near 1e-6; first-order damping", fontsize=10)
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(True, which="both", alpha=0.3)
+
+    ax = axes[1, 0]
+    for tau in sorted({r["duration"] for r in study["modes"]}):
+        rs = [r for r in study["modes"] if r["duration"] == tau]
+        label = "ideal impulse" if tau == 0 else f"half-sine {tau * 1e3:g} ms"
+        ax.semilogx([r["n_modes"] for r in rs], [r["stress"] / 1e6 for r in rs], "o-", label=label)
+    ax.set_xlabel("modes")
+    ax.set_ylabel("peak stress (MPa)")
+    ax.set_title("Ideal impulse never converges; 0.05-1 ms pulses do", fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+
+    ax = axes[1, 1]
+    rs = study["buckling"]
+    ax.plot([r["load_ratio"] for r in rs], [r["f1_hz"] for r in rs], "o-", color="tab:blue", label="f1 (Hz)")
+    ax.set_xlabel("axial compression / Euler load")
+    ax.set_ylabel("first frequency (Hz)", color="tab:blue")
+    ax2 = ax.twinx()
+    ax2.plot([r["load_ratio"] for r in rs], [r["stress"] / 1e6 for r in rs], "s--", color="tab:red")
+    ax2.set_ylabel("peak stress (MPa)", color="tab:red")
+    ax.set_title("Approaching buckling: f1 -> 0, the peak grows", fontsize=10)
+    ax.grid(True, alpha=0.3)
+    return fig
