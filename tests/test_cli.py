@@ -571,8 +571,9 @@ def test_flat_plate_drop_prints_plain_numbers_and_names_the_cli_option(capsys):
     assert "raise --max-modes (Numerics.max_modes, 16 here" in note
     assert main(["drop", "--scene", "jesd22-board", "--no-plots", "--json", "--max-modes", "32"]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert report["converged"] is True and report["n_modes"] > 16
-    assert not any("converged" in note for note in report["notes"])  # the deflection's note stays
+    # More modes leave the 12 x 12 Ritz basis as the largest error (0.6 %), and the note then names it.
+    assert report["converged"] is False and report["n_modes"] > 16
+    assert any("not converged: a Ritz basis" in note and "Plate.basis" in note for note in report["notes"])
     assert isinstance(report["gauge_peak_strain_microstrain"], list)  # --json keeps its types
 
 

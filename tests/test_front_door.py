@@ -213,7 +213,7 @@ def test_empty_mounts_clear_the_extended_scenes_mounts(tmp_path, capsys):
     free = tmp_path / "free.toml"  # the base's edges are free: without its screws the plate is not held
     free.write_text('extends = "jesd22-board"\n[plate]\nmounts = []\n')
     one_error_line(capsys, ["drop", "--scene", str(free), "--no-plots", "--no-cache"], str(free), "[plate]",
-                   "edges = 'FFFF'", "needs at least 3 mounts")
+                   "edges = 'FFFF'", "at least 3 mounts not on one line")
 
 
 def test_scene_files_extend_or_give_everything(tmp_path):

@@ -72,7 +72,7 @@ def _not_converged(board, response: Response) -> str:
                 f"raise Plate.basis (now {board.basis}; `basis = [nx, ny]` in the scene file's [plate], at most 40)")
     what = "the peak" if name == "modes" else "a gauge's peak strain"
     # A check with fewer modes than the answer means the count hit its cap.
-    fix = ("raise Numerics.max_modes (the CLI's --max-modes)" if int(response.check_modes) < int(response.n_modes)
+    fix = ("raise Numerics.max_modes" if int(response.check_modes) < int(response.n_modes)
            else "raise Numerics.pulse_modes (modes up to f_k x duration >= "
            f"{Numerics().for_board(board).pulse_band:g} by default)")
     return f"not converged: {int(response.check_modes)} modes change {what} by {change}; {fix}"

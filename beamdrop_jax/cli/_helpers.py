@@ -217,7 +217,7 @@ def _tidy_positions(summary: dict, size_mm: float) -> dict:
 def _cli_note(note: str, numerics) -> str:
     """A library note (which names the Python API's fields) as the command line's user needs it: the option that
     does it, with the field in brackets."""
-    n = numerics.max_modes
+    n = numerics.max_modes or 16  # unset: the board's own (16 for the beam and the plate)
     for api, cli in (
         ("raise Numerics.max_modes", f"raise --max-modes (Numerics.max_modes, {n} here; at most {MAX_MODES})"),
         ("raise Numerics.pulse_modes (modes up to f_k x duration >= 2 by default)",
