@@ -769,3 +769,20 @@ def test_gauge_and_sensitivity_draw_figures_and_latency_writes_nothing(tmp_path,
     out = tmp_path / "latency"
     assert main(["bench", "--latency", "--repeats", "1", "--out", str(out)]) == 0
     assert "first drop" in capsys.readouterr().out and not out.exists()  # printed only: no empty folder
+
+
+def test_a_plate_gauge_anywhere_from_the_command_line(tmp_path, capsys):
+    """`--gauge X,Y` reads a gauge anywhere on a plate (mm from end A, and across from the centre line), the same
+    reading as `bd.simulate(..., gauges=...)`; on a beam a Y is refused in one line."""
+    import beamdrop_jax as bd
+
+    argv = ["drop", "--scene", "jesd22-board", "--gauge", "30,20", "--no-plots", "--json", "--out", str(tmp_path)]
+    assert main(argv) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [(g["x_mm"], g["y_mm"]) for g in report["gauges"]] == [(66.0, 0.0), (30.0, 20.0)]
+    res = bd.simulate(bd.load_scene("jesd22-board"), gauges=((0.066, 0.0), (0.03, 0.02)))
+    np.testing.assert_allclose([g["peak_strain_microstrain"] for g in report["gauges"]],
+                               np.asarray(res.gauges.peak_strain) * 1e6, rtol=1e-9)
+    assert main(["drop", "--gauge", "30,20", "--no-plots", "--out", str(tmp_path)]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if "compiling" not in line]
+    assert len(err) == 1 and "a beam's gauge is X_MM alone" in err[0], err
