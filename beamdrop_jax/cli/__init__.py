@@ -152,6 +152,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-angle", type=_float_in(0.0, 90.0, "deg"), metavar="DEG",
                    help="largest tilt of the board from the housing's width, deg in [0, 90] (0: level; default: "
                         "as far as it fits)")
+    p.add_argument("--mounts", action="store_true",
+                   help="move a plate's screws instead of the board (bd.optimize_mounts: each anywhere its disc fits "
+                        "on the plate), minimising the peak strain (microstrain) or, with --gauge, that gauge's")
+    p.add_argument("--min-spacing", type=_float_in(0.0, 1e4, "mm"), default=0.0, metavar="MM",
+                   help="with --mounts: least distance between screws, mm (default 0)")
+    p.add_argument("--gauge", type=_gauge, metavar="X_MM[,Y_MM]",
+                   help="with --mounts: minimise the strain this gauge reads (mm from end A and across from the "
+                        "centre line) instead of the peak over the plate")
     modes(p, "8")
     p.set_defaults(func=cmd_optimize)
 

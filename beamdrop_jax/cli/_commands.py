@@ -200,6 +200,11 @@ def cmd_optimize(args, output):
     scene = _scene(args)
     orientations = np.radians(args.orientations)
     numerics = _numerics(args, n_modes=args.n_modes or 8)
+    if args.mounts:
+        return _optimize_mounts(args, output, scene, orientations, numerics)
+    if args.gauge is not None or args.min_spacing:
+        raise ValueError("--gauge and --min-spacing go with --mounts (moving a plate's screws); placing the board "
+                         "takes --region and --max-angle")
     max_angle = None if args.max_angle is None else math.radians(args.max_angle)
     res = bd.optimize_placement(scene, orientations, args.heights, objective=args.objective, alpha=args.alpha,
                                 numerics=numerics, steps=args.steps, starts=args.starts, margin=args.margin * 1e-3,
@@ -221,6 +226,34 @@ def cmd_optimize(args, output):
         landscape = bd.placement_landscape(scene, res, orientations, args.heights, alpha=args.alpha,
                                            numerics=numerics, margin=args.margin * 1e-3, region=args.region)
         _save(output, bd.plot_placement(scene, res, landscape), "placement.png", args)
+
+
+def _optimize_mounts(args, output, scene, orientations, numerics):
+    import numpy as np
+
+    import beamdrop_jax as bd
+    from .._common.report import write_csv
+
+    if getattr(scene.board, "mounts", None) is None:
+        raise ValueError(f"--mounts moves a plate's screws: {_scene_name(args)} has no plate with mounts (try "
+                         "--scene jesd22-board)")
+    if args.region is not None or args.max_angle is not None:
+        raise ValueError("--region and --max-angle place the board; with --mounts each screw goes anywhere its disc "
+                         "fits on the plate (bd.optimize_mounts(region=...) for boxes of your own)")
+    gauges = None if args.gauge is None else ((args.gauge[0] * 1e-3, (args.gauge[1] or 0.0) * 1e-3),)
+    res = bd.optimize_mounts(scene, min_spacing=args.min_spacing * 1e-3, gauges=gauges, orientations=orientations,
+                             heights=args.heights, objective=args.objective, alpha=args.alpha, numerics=numerics,
+                             steps=args.steps, starts=args.starts, progress=not args.json)
+    what = "the gauge's peak strain" if gauges else "the peak strain over the plate"
+    output.summary(res.summary(), f"Screw placement: {args.objective} of {what} over {res.n_drops} drop"
+                                  + ("" if res.n_drops == 1 else "s") + f" ({res.n_evaluations} evaluations)")
+    if not res.converged:
+        output.note(f"not converged: the objective still changed over the last steps; raise --steps (now {args.steps})")
+    if args.min_spacing and not res.spacing_met:
+        output.note(f"--min-spacing {args.min_spacing:g} mm not met: the closest screws are "
+                    f"{float(res.spacing) * 1e3:.3g} mm apart")
+    history = [{"step": i, "objective_microstrain": v * 1e6} for i, v in enumerate(np.asarray(res.history).tolist())]
+    output.wrote(write_csv(history, Path(args.out) / "optimize-mounts-history.csv"))
 
 
 def cmd_montecarlo(args, output):
