@@ -770,3 +770,39 @@ def test_gauge_and_sensitivity_draw_figures_and_latency_writes_nothing(tmp_path,
     out = tmp_path / "latency"
     assert main(["bench", "--latency", "--repeats", "1", "--out", str(out)]) == 0
     assert "first drop" in capsys.readouterr().out and not out.exists()  # printed only: no empty folder
+
+
+def test_a_plate_gauge_anywhere_from_the_command_line(tmp_path, capsys):
+    """`--gauge X,Y` reads a gauge anywhere on a plate (mm from end A, and across from the centre line), the same
+    reading as `bd.simulate(..., gauges=...)`; on a beam a Y is refused in one line."""
+    import beamdrop_jax as bd
+
+    argv = ["drop", "--scene", "jesd22-board", "--gauge", "30,20", "--no-plots", "--json", "--out", str(tmp_path)]
+    assert main(argv) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [(g["x_mm"], g["y_mm"]) for g in report["gauges"]] == [(66.0, 0.0), (30.0, 20.0)]
+    res = bd.simulate(bd.load_scene("jesd22-board"), gauges=((0.066, 0.0), (0.03, 0.02)))
+    np.testing.assert_allclose([g["peak_strain_microstrain"] for g in report["gauges"]],
+                               np.asarray(res.gauges.peak_strain) * 1e6, rtol=1e-9)
+    assert main(["drop", "--gauge", "30,20", "--no-plots", "--out", str(tmp_path)]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if "compiling" not in line]
+    assert len(err) == 1 and "a beam's gauge is X_MM alone" in err[0], err
+
+
+def test_optimize_moves_a_plates_screws_from_the_command_line(tmp_path, capsys):
+    """`beamdrop optimize --mounts` runs bd.optimize_mounts: the before/after strain of the returned layout, where
+    the screws went, whether it converged; options that place the board are refused with it in one line."""
+    argv = ["optimize", "--mounts", "--scene", "jesd22-board", "--orientations", "0", "--steps", "2", "--starts", "1",
+            "--n-modes", "4", "--min-spacing", "20", "--no-plots", "--json", "--out", str(tmp_path)]
+    assert main(argv) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["objective"] == "mean peak strain over 1 drop" and len(report["mounts_mm"]) == 4
+    assert report["after_microstrain"] <= report["before_microstrain"] * (1 + 1e-9)
+    assert report["min_spacing_met"] is True and report["smallest_spacing_mm"] >= 20
+    assert (tmp_path / "optimize-mounts-history.csv").exists()
+    assert main(["optimize", "--mounts", "--region", "-10,-5,10,5", "--scene", "jesd22-board",
+                 "--out", str(tmp_path)]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if "compiling" not in line]
+    assert len(err) == 1 and "--region and --max-angle place the board" in err[0], err
+    assert main(["optimize", "--mounts", "--out", str(tmp_path)]) == 2
+    assert "has no plate with mounts" in capsys.readouterr().err

@@ -592,3 +592,32 @@ def test_default_gradients_of_a_screwed_board_match_central_differences():
     for i, j in [(0, 0), (2, 1)]:
         fd = (float(peak(mounts.at[i, j].add(step))) - float(peak(mounts.at[i, j].add(-step)))) / (2 * step)
         np.testing.assert_allclose(grad[i, j], fd, rtol=5e-3)
+
+
+def test_mount_optimiser_reports_the_strain_it_returns_and_keeps_its_constraints():
+    """The summary reads the strain of the layout returned and of the scene's own (not a penalised objective), a
+    spacing the boxes cannot give is refused, a start on a box's edge still moves, boxes are cut to where a screw's
+    disc stays on the plate, and the result says whether it converged and kept the spacing."""
+    from beamdrop_jax._response.objectives import _scene_peaks
+
+    mounts = np.array([(0.006, -0.0325), (0.126, -0.0325), (0.006, 0.0325), (0.126, 0.0325)])
+    plate = bd.Plate(length=0.132, width=0.077, thickness=1e-3, youngs_modulus=24e9, density=1850.0,
+                     poisson_ratio=0.2, edges="FFFF", mounts=mounts, mount_radius=3e-3, basis=(6, 6))
+    scene = eqx.tree_at(lambda s: s.board, bd.load_scene("jesd22-board"), plate)
+    numerics = bd.Numerics(n_modes=4)
+    with pytest.raises(ValueError, match=r"min_spacing = 0\.2 m cannot be met: mounts 0 and 1 can be at most"):
+        bd.optimize_mounts(scene, min_spacing=0.2, numerics=numerics, steps=1, starts=1, progress=False)
+    region = np.stack([mounts, mounts], axis=1)
+    region[0, :, 1] = (-0.0385, -0.0325)  # the first screw's y: its box reaches the edge, its start on the box's top
+    res = bd.optimize_mounts(scene, region=region, min_spacing=0.01, numerics=numerics, steps=8, starts=1,
+                             learning_rate=0.5, progress=False)
+    strain = eqx.filter_jit(lambda s: _scene_peaks(s, numerics, ("strain",))[0][0])
+    moved = eqx.tree_at(lambda s: s.board.mounts, scene, res.mounts)
+    assert float(res.value) == pytest.approx(float(strain(moved)), rel=1e-9)
+    assert float(res.initial_value) == pytest.approx(float(strain(scene)), rel=1e-9)
+    y0 = float(res.mounts[0, 1])
+    assert y0 != -0.0325 and -0.0385 + 3e-3 - 1e-12 <= y0  # moved off its start, its disc on the plate
+    assert res.spacing_met and float(res.spacing) >= 0.01
+    summary = res.summary()
+    assert summary["objective"] == "mean peak strain over 1 drop" and "converged" in summary
+    assert summary["after_microstrain"] == pytest.approx(float(res.value) * 1e6)

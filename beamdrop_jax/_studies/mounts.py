@@ -28,28 +28,48 @@ from .._common.report import plain
 
 
 class MountResult(AbstractOptimum):
-    """Outcome of `optimize_mounts`: `mounts` (m, 2) the best found (m), `value` its objective, `initial_value`
-    the scene's own mounts' (strain, -), `history` the objective per step, `n_evaluations`, `n_drops`."""
+    """Outcome of `optimize_mounts`: `mounts` (m, 2) the best found (m); `value` its objective and
+    `initial_value` the scene's own mounts' (strain, -: the mean, max or CVaR peak strain, without the spacing
+    penalty); `history` the penalised objective per step of the best start; `spacing` the smallest distance
+    between the returned mounts (m) against `min_spacing`; `converged` whether the best start's objective changed
+    by less than 1e-3 over its last fifth of steps; `n_evaluations`, `n_drops`."""
 
     mounts: Float[Array, "m 2"]
     value: Float[Array, ""]
     initial_value: Float[Array, ""]
     history: Float[Array, " steps"]
+    spacing: Float[Array, ""]
+    min_spacing: float = eqx.field(static=True)
+    converged: bool = eqx.field(static=True)
     n_evaluations: int = eqx.field(static=True)
     n_drops: int = eqx.field(static=True)
     objective: str = eqx.field(static=True)
 
+    @property
+    def spacing_met(self) -> bool:
+        """Whether the returned mounts keep `min_spacing` (to 1 %)."""
+        return bool(self.spacing >= 0.99 * self.min_spacing)
+
     def summary(self) -> dict:
-        return plain({"objective": f"{self.objective} peak strain over {self.n_drops} drops",
-                      "before_microstrain": self.initial_value * 1e6, "after_microstrain": self.value * 1e6,
-                      "mounts_mm": self.mounts * 1e3, "evaluations": self.n_evaluations})
+        drops = f"{self.n_drops} drop" + ("" if self.n_drops == 1 else "s")
+        out = {"objective": f"{self.objective} peak strain over {drops}",
+               "before_microstrain": self.initial_value * 1e6, "after_microstrain": self.value * 1e6,
+               "mounts_mm": self.mounts * 1e3, "evaluations": self.n_evaluations,
+               "converged": self.converged}
+        if self.min_spacing > 0:
+            out["smallest_spacing_mm"] = self.spacing * 1e3
+            out["min_spacing_met"] = self.spacing_met
+        return plain(out)
 
 
 def _region(plate: Plate, region) -> np.ndarray:
+    """Each mount's box, its disc kept on the plate: a box of some width is cut to where a disc of `mount_radius`
+    fits (a box of zero width may hold a mount on an edge itself, a boundary point support)."""
     m = plate.mounts.shape[0]
     L, W, r = float(plate.length), float(plate.width), float(plate.mount_radius)
+    fits = np.array([[r, -W / 2 + r], [L - r, W / 2 - r]])
     if region is None:  # anywhere on the plate, the disc inside it
-        return np.broadcast_to(np.array([[r, -W / 2 + r], [L - r, W / 2 - r]]), (m, 2, 2)).copy()
+        return np.broadcast_to(fits, (m, 2, 2)).copy()
     box = np.asarray(region, dtype=float)
     if box.shape == (2, 2):
         box = np.broadcast_to(box, (m, 2, 2)).copy()
@@ -60,10 +80,32 @@ def _region(plate: Plate, region) -> np.ndarray:
     if not np.all(inside) or np.any(box[:, 1] < box[:, 0]):
         raise ValueError(f"region {box.tolist()} m; valid: boxes with lo <= hi on the plate (0 <= x <= {L:g}, "
                          f"|y| <= {W / 2:g})")
+    wide = box[:, 1] > box[:, 0]
+    cut = np.where(wide[:, None], np.stack([np.maximum(box[:, 0], fits[0]), np.minimum(box[:, 1], fits[1])], 1), box)
+    empty = wide[:, None] & (cut[:, 1] < cut[:, 0])
+    if np.any(empty):
+        i = int(np.argwhere(empty)[0][0])
+        raise ValueError(f"region[{i}] = {box[i].tolist()} m leaves no place where a mount's disc (mount_radius = "
+                         f"{r:g} m) fits on the plate; valid: boxes reaching into {r:g} <= x <= {L - r:g} m, "
+                         f"|y| <= {W / 2 - r:g} m")
     mounts = np.asarray(plate.mounts)
-    if np.any(mounts < box[:, 0] - 1e-12) or np.any(mounts > box[:, 1] + 1e-12):
-        raise ValueError(f"the scene's mounts {mounts.tolist()} m must start inside their region boxes")
-    return box
+    if np.any(mounts < cut[:, 0] - 1e-12) or np.any(mounts > cut[:, 1] + 1e-12):
+        raise ValueError(f"the scene's mounts {mounts.tolist()} m must start inside their region boxes, each cut to "
+                         f"where a mount's disc fits on the plate ({cut.tolist()} m)")
+    return cut
+
+
+def _check_spacing(box: np.ndarray, min_spacing: float) -> None:
+    """A `min_spacing` the boxes cannot give every pair of mounts is refused: two mounts whose boxes' farthest
+    points are closer than it could never meet it."""
+    m = box.shape[0]
+    for i in range(m):
+        for j in range(i + 1, m):
+            gap = np.maximum(np.abs(box[i, 1] - box[j, 0]), np.abs(box[j, 1] - box[i, 0]))
+            if float(np.hypot(*gap)) < min_spacing:
+                raise ValueError(f"min_spacing = {min_spacing:g} m cannot be met: mounts {i} and {j} can be at most "
+                                 f"{float(np.hypot(*gap)):.4g} m apart in their boxes; valid: min_spacing <= that, "
+                                 "or larger boxes (region)")
 
 
 def optimize_mounts(
@@ -109,13 +151,16 @@ def optimize_mounts(
     check_scene(scene)
     numerics = Numerics(n_modes=8) if numerics is None else numerics
     points = _gauge_points(gauges)
-    box = jnp.asarray(_region(scene.board, region), dtype=float_dtype())
+    box = _region(scene.board, region)
+    _check_spacing(box, float(min_spacing))
+    box = jnp.asarray(box, dtype=float_dtype())
     lo, span = box[:, 0], box[:, 1] - box[:, 0]
     drops = scene if orientations is None and heights is None else drop_set(
         scene, scene.drop.orientation if orientations is None else orientations, heights)
     batched = orientations is not None or heights is not None
     n_drops = int(drops.drop.orientation.shape[0]) if batched else 1
-    frac = jnp.clip((scene.board.mounts - lo) / jnp.where(span > 0, span, 1.0), 1e-6, 1 - 1e-6)
+    # A start on a box's edge would sit where the sigmoid is flat (and never move): a hundredth inside it.
+    frac = jnp.clip((scene.board.mounts - lo) / jnp.where(span > 0, span, 1.0), 1e-2, 1 - 1e-2)
     z0 = jnp.where(span > 0, jnp.log(frac / (1 - frac)), 0.0)
 
     def mounts_of(z):
@@ -126,12 +171,18 @@ def optimize_mounts(
             return _scene_peaks(s, numerics, ("strain",))[0][0]
         return jnp.max(_simulate(s, numerics, points).gauges.peak_strain)
 
-    def f(z):
-        m = mounts_of(z)
+    def strain_at(m):
         moved = eqx.tree_at(lambda s: s.board.mounts, drops, jnp.broadcast_to(m, drops.board.mounts.shape))
         values = jax.vmap(peak)(moved) if batched else peak(moved)[None]
-        value = risk(values, objective, alpha)
+        return risk(values, objective, alpha)
+
+    def raw(z):
+        return strain_at(mounts_of(z))
+
+    def f(z):
+        value = raw(z)
         if min_spacing > 0:
+            m = mounts_of(z)
             d = jnp.sqrt(jnp.sum((m[:, None] - m[None]) ** 2, axis=-1) + jnp.eye(m.shape[0]))
             value = value * (1 + 1e3 * jnp.sum(jnp.triu(jnp.maximum(min_spacing - d, 0.0), 1) ** 2) / min_spacing**2)
         return value
@@ -160,5 +211,12 @@ def optimize_mounts(
     best_v, best_z = jnp.where(improved, final, best_v), jnp.where(improved[:, None, None], Z, best_z)
     winner = int(jnp.argmin(best_v))
     histories = jnp.stack(history, axis=1)
-    return MountResult(mounts_of(best_z[winner]), best_v[winner], histories[0, 0], histories[winner],
+    best = mounts_of(best_z[winner])
+    # What the user reads is the strain of the layout returned and of the scene's own, not the penalised objective.
+    value, initial = filter_jit(jax.vmap(strain_at))(jnp.stack([best, scene.board.mounts]))
+    d = jnp.sqrt(jnp.sum((best[:, None] - best[None]) ** 2, axis=-1))
+    spacing = jnp.min(jnp.where(jnp.eye(best.shape[0], dtype=bool), jnp.inf, d)) if best.shape[0] > 1 else jnp.inf
+    tail = np.asarray(histories[winner])[-max(2, steps // 5):]
+    converged = bool(np.ptp(tail) <= 1e-3 * abs(float(best_v[winner])))
+    return MountResult(best, value, initial, histories[winner], spacing, float(min_spacing), converged,
                        starts * (steps + 1), n_drops, objective)

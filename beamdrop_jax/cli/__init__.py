@@ -35,6 +35,7 @@ from ._helpers import (
     _check_out,
     _degrees_list,
     _float_in,
+    _gauge,
     _heights,
     _int_at_least,
     _int_in,
@@ -106,9 +107,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--solver", help="diffrax solver (Tsit5, Dopri5, Dopri8, Kvaerno5, ImplicitEuler, ...)")
     modes(p, cap=True)
     impacts(p)
-    p.add_argument("--gauge", type=_float_in(0.0, 1e5, "mm"), metavar="X_MM",
-                   help="also write the strain history at X_MM from end A (CSV: ms, microstrain, MPa; and a "
-                        "figure, gauge_X_MMmm.png)")
+    p.add_argument("--gauge", type=_gauge, metavar="X_MM[,Y_MM]",
+                   help="also read a strain gauge at X_MM from end A (on a plate: and Y_MM across it from its "
+                        "centre line, default 0): a beam writes its history (CSV: ms, microstrain, MPa; and a figure, "
+                        "gauge_X_MMmm.png), a plate adds it to its gauges (CSV gauges.csv)")
     p.set_defaults(func=cmd_drop)
 
     p = command("campaign", "a standard drop campaign (ISTA 1A/2A, MIL-STD-810H 516.8-IV, IEC 60068-2-31, "
@@ -150,6 +152,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-angle", type=_float_in(0.0, 90.0, "deg"), metavar="DEG",
                    help="largest tilt of the board from the housing's width, deg in [0, 90] (0: level; default: "
                         "as far as it fits)")
+    p.add_argument("--mounts", action="store_true",
+                   help="move a plate's screws instead of the board (bd.optimize_mounts: each anywhere its disc fits "
+                        "on the plate), minimising the peak strain (microstrain) or, with --gauge, that gauge's")
+    p.add_argument("--min-spacing", type=_float_in(0.0, 1e4, "mm"), default=0.0, metavar="MM",
+                   help="with --mounts: least distance between screws, mm (default 0)")
+    p.add_argument("--gauge", type=_gauge, metavar="X_MM[,Y_MM]",
+                   help="with --mounts: minimise the strain this gauge reads (mm from end A and across from the "
+                        "centre line) instead of the peak over the plate")
     modes(p, "8")
     p.set_defaults(func=cmd_optimize)
 

@@ -54,12 +54,17 @@ def cmd_drop(args, output):
 
     scene = _scene(args)
     numerics = _numerics(args)
-    if args.gauge is not None and not 0 <= args.gauge * 1e-3 <= float(scene.board.length):
-        raise ValueError(f"--gauge {args.gauge:g} mm is off the board: valid [0, {float(scene.board.length) * 1e3:g}] "
-                         "mm from end A")
+    gauge_x, gauge_y = args.gauge if args.gauge is not None else (None, None)
     plate = scene.board.SURFACE
-    if plate:  # a gauge at the centre (where JESD22-B111 measures) and one at --gauge on the centre line
-        gauges = [(float(scene.board.length) / 2, 0.0)] + ([(args.gauge * 1e-3, 0.0)] if args.gauge is not None else [])
+    if gauge_x is not None and not 0 <= gauge_x * 1e-3 <= float(scene.board.length):
+        raise ValueError(f"--gauge {gauge_x:g} mm is off the board: valid [0, {float(scene.board.length) * 1e3:g}] "
+                         "mm from end A")
+    if gauge_y is not None and not plate:
+        raise ValueError(f"--gauge {gauge_x:g},{gauge_y:g}: a beam's gauge is X_MM alone (it bends along x only); "
+                         "valid: --gauge X_MM")
+    if plate:  # a gauge at the centre (where JESD22-B111 measures) and one at --gauge
+        gauges = [(float(scene.board.length) / 2, 0.0)] + (
+            [(gauge_x * 1e-3, (gauge_y or 0.0) * 1e-3)] if gauge_x is not None else [])
         board_text = (f"; plate {float(scene.board.length) * 1e3:g} x {float(scene.board.width) * 1e3:g} mm, edges "
                       f"{scene.board.edges}" + ("" if scene.board.mounts is None
                                                 else f", {scene.board.mounts.shape[0]} mounts"))
@@ -111,20 +116,20 @@ def cmd_drop(args, output):
             _save(output, bd.plot_plate_strain(strain_map, res, scene.board), "strain_map.png", args)
             _save(output, bd.plot_impacts(scene, res), "impact.png", args)
         return
-    if args.gauge is not None:
-        fields = bd.response_fields(scene, numerics, x=[args.gauge * 1e-3], nt=2001)
+    if gauge_x is not None:
+        fields = bd.response_fields(scene, numerics, x=[gauge_x * 1e-3], nt=2001)
         from .._common.report import write_csv
 
         rows = [{"t_ms": t * 1e3, "strain_microstrain": e * 1e6, "stress_MPa": s * 1e-6}
                 for t, e, s in zip(np.asarray(fields.t), np.asarray(fields.strain[0]), np.asarray(fields.stress[0]))]
-        output.wrote(write_csv(rows, Path(args.out) / f"gauge_{args.gauge:g}mm.csv"))
+        output.wrote(write_csv(rows, Path(args.out) / f"gauge_{gauge_x:g}mm.csv"))
         peak = int(np.argmax(np.abs(np.asarray(fields.strain[0]))))
-        output.summary({"gauge_x_mm": args.gauge, "gauge_peak_strain_microstrain": rows[peak]["strain_microstrain"],
+        output.summary({"gauge_x_mm": gauge_x, "gauge_peak_strain_microstrain": rows[peak]["strain_microstrain"],
                         "gauge_peak_time_ms": rows[peak]["t_ms"]}, "Gauge (signed strain of the normal-side face)")
         if not args.no_plots:
-            fig = bd.plot_gauge_history(fields.t, fields.strain[0], args.gauge * 1e-3,
+            fig = bd.plot_gauge_history(fields.t, fields.strain[0], gauge_x * 1e-3,
                                         modulus=scene.board.youngs_modulus)
-            _save(output, fig, f"gauge_{args.gauge:g}mm.png", args)
+            _save(output, fig, f"gauge_{gauge_x:g}mm.png", args)
     if not args.no_plots:
         fields = bd.response_fields(scene, numerics)
         _save(output, bd.plot_scene(scene, res), "scene.png", args)
@@ -195,6 +200,11 @@ def cmd_optimize(args, output):
     scene = _scene(args)
     orientations = np.radians(args.orientations)
     numerics = _numerics(args, n_modes=args.n_modes or 8)
+    if args.mounts:
+        return _optimize_mounts(args, output, scene, orientations, numerics)
+    if args.gauge is not None or args.min_spacing:
+        raise ValueError("--gauge and --min-spacing go with --mounts (moving a plate's screws); placing the board "
+                         "takes --region and --max-angle")
     max_angle = None if args.max_angle is None else math.radians(args.max_angle)
     res = bd.optimize_placement(scene, orientations, args.heights, objective=args.objective, alpha=args.alpha,
                                 numerics=numerics, steps=args.steps, starts=args.starts, margin=args.margin * 1e-3,
@@ -216,6 +226,34 @@ def cmd_optimize(args, output):
         landscape = bd.placement_landscape(scene, res, orientations, args.heights, alpha=args.alpha,
                                            numerics=numerics, margin=args.margin * 1e-3, region=args.region)
         _save(output, bd.plot_placement(scene, res, landscape), "placement.png", args)
+
+
+def _optimize_mounts(args, output, scene, orientations, numerics):
+    import numpy as np
+
+    import beamdrop_jax as bd
+    from .._common.report import write_csv
+
+    if getattr(scene.board, "mounts", None) is None:
+        raise ValueError(f"--mounts moves a plate's screws: {_scene_name(args)} has no plate with mounts (try "
+                         "--scene jesd22-board)")
+    if args.region is not None or args.max_angle is not None:
+        raise ValueError("--region and --max-angle place the board; with --mounts each screw goes anywhere its disc "
+                         "fits on the plate (bd.optimize_mounts(region=...) for boxes of your own)")
+    gauges = None if args.gauge is None else ((args.gauge[0] * 1e-3, (args.gauge[1] or 0.0) * 1e-3),)
+    res = bd.optimize_mounts(scene, min_spacing=args.min_spacing * 1e-3, gauges=gauges, orientations=orientations,
+                             heights=args.heights, objective=args.objective, alpha=args.alpha, numerics=numerics,
+                             steps=args.steps, starts=args.starts, progress=not args.json)
+    what = "the gauge's peak strain" if gauges else "the peak strain over the plate"
+    output.summary(res.summary(), f"Screw placement: {args.objective} of {what} over {res.n_drops} drop"
+                                  + ("" if res.n_drops == 1 else "s") + f" ({res.n_evaluations} evaluations)")
+    if not res.converged:
+        output.note(f"not converged: the objective still changed over the last steps; raise --steps (now {args.steps})")
+    if args.min_spacing and not res.spacing_met:
+        output.note(f"--min-spacing {args.min_spacing:g} mm not met: the closest screws are "
+                    f"{float(res.spacing) * 1e3:.3g} mm apart")
+    history = [{"step": i, "objective_microstrain": v * 1e6} for i, v in enumerate(np.asarray(res.history).tolist())]
+    output.wrote(write_csv(history, Path(args.out) / "optimize-mounts-history.csv"))
 
 
 def cmd_montecarlo(args, output):

@@ -237,6 +237,19 @@ def _scene(args):
     return bd.load_scene(args.scene) if args.scene else bd.Scene.default()
 
 
+def _gauge(text):
+    """--gauge X_MM or X_MM,Y_MM: where a gauge reads, mm from end A (and across a plate from its centre line)."""
+    parts = [part.strip() for part in str(text).split(",")]
+    try:
+        values = [float(part) for part in parts]
+    except ValueError:
+        values = []
+    if len(values) not in (1, 2) or not all(math.isfinite(v) and abs(v) <= 1e5 for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number or a pair of numbers; valid: X_MM or X_MM,Y_MM "
+                                         "(mm, finite), e.g. 66 or 30,20")
+    return values[0], (values[1] if len(values) == 2 else None)
+
+
 def _scene_name(args) -> str:
     return f"scene {args.scene}" if args.scene else "the default scene"
 
