@@ -10,7 +10,7 @@ import equinox as eqx
 import jax
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, example, given, settings, strategies as st
 
 import beamdrop_jax as bd
 from beamdrop_jax._scene import containers as _scene
@@ -132,6 +132,8 @@ def test_no_nan_gradient_where_the_value_is_valid(scene):
     mu=st.one_of(ABSURD, st.floats(0.0, 2.0), WRONG_TYPES),
     e=st.one_of(ABSURD, st.floats(0.0, 1.0), WRONG_TYPES),
 )
+# Singular, asymmetric within round-off of a huge entry: it once passed as definite and answered NaN unflagged.
+@example(B=[1e30, -1.0, 1e-300, 0.0], v0=[0.0, 0.0], mu=0.0, e=0.0)
 def test_routh_impulse_names_its_bad_argument_or_answers(B, v0, mu, e):
     B = np.array(B).reshape(2, 2)
     try:

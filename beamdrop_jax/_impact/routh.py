@@ -199,8 +199,11 @@ def _positive_definite(B):
     xp = array_module(B)
     scale = xp.max(xp.abs(B))
     symmetric = xp.abs(B[0, 1] - B[1, 0]) <= 1e-12 * scale
-    det = B[0, 0] * B[1, 1] - B[0, 1] * B[1, 0]
-    return xp.all(xp.isfinite(B)) & symmetric & (B[0, 0] > 0) & (det > 0)
+    # The determinant of the symmetric part: an asymmetry within round-off of a huge entry must not make a
+    # singular B look definite (B = [[1e30, -1], [1e-300, 0]] did, and its impulse was NaN).
+    off = (B[0, 1] + B[1, 0]) / 2
+    det = B[0, 0] * B[1, 1] - off * off
+    return xp.all(xp.isfinite(B)) & symmetric & (B[0, 0] > 0) & (B[1, 1] > 0) & (det > 0)
 
 
 def _check_eagerly(B, v0, mu, e):
