@@ -293,3 +293,25 @@ class Record(AbstractMotion):
     def velocity_jumps(self) -> Float[Array, "2"]:
         """Integral of each support's acceleration (trapezoids), m/s."""
         return jnp.stack([jnp.trapezoid(self.aA, self.t), jnp.trapezoid(self.aB, self.t)])
+
+
+class LandingMotion(Record):
+    """The supports' normal acceleration through a compliant landing (`Contact(model="compliant")`, or `"auto"`
+    where corners strike together), sampled on [0, window] from the first touch: a `Record` whose modes and search
+    window follow one corner contact's `duration` (as the rigid law's half-sine does), not the record's length.
+    `weight` is the compliant landing's share where `"auto"` blends it with the rigid law's half-sine (1: the
+    landing alone). Built by `landing_motion`; needs the diffrax path."""
+
+    duration: Float[Array, ""]
+    weight: Float[Array, ""]
+
+    def __init__(self, t, aA, aB, duration, weight=1.0):
+        super().__init__(t, aA, aB)
+        self.duration = _f(duration)
+        self.weight = _f(weight)
+
+    def pulse_duration(self) -> Float[Array, ""]:
+        return self.duration
+
+    def window_forcing(self) -> Float[Array, ""]:
+        return self.duration

@@ -50,6 +50,8 @@ class Response(eqx.Module):
     - `convergence`: each estimate (`Convergence`).
     - `window`: time window, s (to one fundamental period after the last impact's pulse). `flags`: `Flag` mask (0 = valid; otherwise the peak fields are NaN).
     - `gauges`: strain gauge readings (`Gauges`) at the points asked for (plates; None otherwise); `is_plate`.
+    - `landing_weight`: the compliant landing's share of the supports' motion (`Contact.model`): 0 the rigid law,
+      1 the compliant landing, between the two blended (None from `board_response`).
     """
 
     impulse: ImpactResult | None
@@ -67,6 +69,7 @@ class Response(eqx.Module):
     gauges: "Gauges | None" = None
     is_plate: bool = eqx.field(static=True, default=False)
     convergence: "Convergence | None" = None
+    landing_weight: "Float[Array, ''] | None" = None
 
     def summary(self) -> dict:
         """The numbers of one response, units in the keys (JSON-ready with `plain`; `repr` prints them)."""

@@ -6,7 +6,10 @@ peaks and a convergence check. The board's domain decides the peak search: a lin
 (`surface.py`)."""
 
 
+import dataclasses
+
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 
 from .._board.base import AbstractBoard
@@ -16,6 +19,7 @@ from .._impact.clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
 from .._impact.kinematics import housing_impact
 from .._impact.motion import AbstractMotion, PulseTrain
 from .._scene.containers import Scene, check_scene, require_single, scene_flags
+from .landing_path import compliant_weight, landing_motion
 from .line import _respond_line
 from .numerics import Numerics
 from .results import Response
@@ -74,12 +78,43 @@ def drop_motion(scene: Scene, numerics: Numerics | None = None):
     return motion, impacts, first, impacts.flags
 
 
-def _simulate(scene: Scene, numerics: Numerics, gauges=None) -> Response:
+def _simulate(scene: Scene, numerics: Numerics, gauges=None, landing: str = "rigid") -> Response:
+    """One drop. `landing` (static): `"rigid"` the rigid law's motion, `"compliant"` the compliant landing's
+    (blended by `compliant_weight`), `"either"` both, the answer picked by the weight (traced scenes)."""
     motion, impacts, hit, flags = drop_motion(scene, numerics)
-    response = _respond(scene.board, motion, numerics, combine(scene_flags(scene), flags), gauges)
+    flags = combine(scene_flags(scene), flags)
+    weight = jnp.zeros_like(scene.contact.duration)
+    if landing != "rigid":
+        weight = compliant_weight(scene, numerics, hit)
+        blended, path = landing_motion(scene, numerics, weight, impacts.support_jumps[0])
+        compliant = _respond(scene.board, blended, dataclasses.replace(numerics, method="diffrax"),
+                             combine(flags, path.flags), gauges)
+    if landing == "compliant":
+        response = compliant
+    else:
+        response = _respond(scene.board, motion, numerics, flags, gauges)
+        if landing == "either":
+            response = jax.tree_util.tree_map(lambda a, b: jnp.where(weight > 0, a, b), compliant, response)
     return eqx.tree_at(
-        lambda r: (r.impulse, r.housing, r.impacts), response, (hit.impact, hit, impacts), is_leaf=lambda x: x is None
+        lambda r: (r.impulse, r.housing, r.impacts, r.landing_weight), response, (hit.impact, hit, impacts, weight),
+        is_leaf=lambda x: x is None
     )
+
+
+def _landing_kind(scene: Scene, numerics: Numerics) -> str:
+    """Which path `_simulate` takes (`landing`): decided eagerly for a concrete scene, both under tracing."""
+    if scene.contact.model == "rigid" or numerics.max_impacts > 1:
+        return "rigid"
+    if scene.contact.model == "compliant":
+        return "compliant"
+    if not is_concrete(scene):
+        return "either"
+    return "compliant" if float(_weight_program(scene, numerics)) > 0 else "rigid"
+
+
+@filter_jit
+def _weight_program(scene: Scene, numerics: Numerics):
+    return compliant_weight(scene, numerics, housing_impact(scene, law=numerics.law))
 
 
 _simulate_jit = filter_jit(_simulate)
@@ -124,7 +159,10 @@ def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Res
     numerics = Numerics() if numerics is None else numerics
     require_single(scene, "simulate")
     scene.board.check_gauges(points := _gauge_points(gauges))
-    response = _simulate_jit(scene, numerics, points)
+    if scene.contact.model == "compliant" and numerics.max_impacts > 1:
+        raise ValueError(f'Numerics.max_impacts = {numerics.max_impacts} follows rigid strikes: use Contact(model='
+                         '"rigid") or "auto" with it (the compliant landing follows every strike in the peak window)')
+    response = _simulate_jit(scene, numerics, points, landing=_landing_kind(scene, numerics))
     if is_concrete(scene, response.flags) and int(response.flags):
         _raise_eagerly(scene, numerics, response.flags, response.impacts, "simulate")
     return response

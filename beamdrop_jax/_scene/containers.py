@@ -7,6 +7,7 @@ the valid range; a bool or a string where a number is meant is an error, never c
 by `scene_flags`, which results carry.
 """
 
+import difflib
 import functools
 from typing import ClassVar
 
@@ -104,13 +105,28 @@ class Drop(eqx.Module):
         check_ranges(self)
 
 
+CONTACT_MODELS = ("auto", "rigid", "compliant")
+"""`Contact.model`: how the housing's landing is modelled (DESIGN.md section 7)."""
+
+
 class Contact(eqx.Module):
-    """Ground contact: Coulomb `friction` mu >= 0, `restitution` e in [0, 1], and how long the contact lasts,
-    `duration` (s; 0 means an ideal impulse)."""
+    """Ground contact: Coulomb `friction` mu >= 0, `restitution` e in [0, 1], how long a corner's contact lasts,
+    `duration` (s; 0 means an ideal impulse), and the landing `model`:
+
+    - `"rigid"`: Routh's law at the lowest corner, one corner at a time (exact where a corner strikes alone);
+    - `"compliant"`: every corner that reaches the ground carries a spring-dashpot and Coulomb friction, the
+      housing's rigid motion is integrated through the board's peak window with diffrax (`compliant_landing`),
+      and the board feels the supports' acceleration history;
+    - `"auto"` (default): `"rigid"` where the first corner strikes alone within the board's peak window, the
+      compliant landing where another corner strikes in it (near-flat landings), blended where that strike comes
+      at the window's end so that the answer has no jump. With `duration = 0` (ideal impulses, which overlap
+      only exactly flat) `"auto"` is `"rigid"`.
+    """
 
     friction: Float[Array, ""]
     restitution: Float[Array, ""]
     duration: Float[Array, ""]
+    model: str = eqx.field(static=True)
 
     RANGES: ClassVar[dict] = {
         "friction": (Range(0.0), Flag.FRICTION_NEGATIVE),
@@ -118,11 +134,21 @@ class Contact(eqx.Module):
         "duration": (Range(0.0, unit="s"), Flag.DURATION_NEGATIVE),
     }
 
-    def __init__(self, friction=0.3, restitution=0.5, duration=5e-4):
+    def __init__(self, friction=0.3, restitution=0.5, duration=5e-4, model="auto"):
         init_fields(self, dict(friction=friction, restitution=restitution, duration=duration))
+        if model not in CONTACT_MODELS:
+            near = difflib.get_close_matches(str(model), CONTACT_MODELS, n=1)
+            hint = f" (did you mean {near[0]!r}?)" if near else ""
+            raise ValueError(f"Contact.model = {model!r}{hint}; valid: {', '.join(CONTACT_MODELS)}")
+        self.model = model
 
     def __check_init__(self):
         check_ranges(self)
+        if self.model == "compliant" and is_concrete(self.duration) and np.any(np.asarray(self.duration) <= 0):
+            raise ValueError(
+                f"Contact.duration = {float(np.min(self.duration)):g} s with Contact.model = {self.model!r}: the "
+                "compliant landing needs a duration > 0 (its springs' stiffness comes from it); valid: duration > 0, "
+                'or Contact(model="rigid") for an ideal impulse (duration 0)')
 
 
 SECTIONS = {"housing": Housing, "board": Board, "placement": Placement, "drop": Drop, "contact": Contact}

@@ -6,7 +6,7 @@ angles in degrees under keys ending in `_deg` (`orientation_deg`, `angle_deg`). 
 of every section, or names the embedded scene it changes with a top-level `extends = "default"` and gives only
 what differs. Keys that may always be left out, because leaving them out means something physical rather than
 borrowing a number from another device: `radius_of_gyration` (a uniform plate's), `axial_force`, `damping_ratio`,
-`spin` and `horizontal_speed` (all 0).
+`spin` and `horizontal_speed` (all 0), `model` in `[contact]` (`"auto"`).
 
 Reading is strict: a value of the wrong type (a string, a bool, a list where a number is meant), an unknown key
 (with a "did you mean"), a bare angle key (it would be read as radians), a missing key or section, a value out of
@@ -24,7 +24,7 @@ import numpy as np
 from .._board.beam import ENDS
 from .._common.checks import DEG, Range, as_float
 from .._board.plate import Plate
-from .containers import MAX_ANGLE, SECTIONS, Scene
+from .containers import CONTACT_MODELS, MAX_ANGLE, SECTIONS, Scene
 
 ANGLE_KEYS = {("placement", "angle"), ("drop", "orientation")}
 OPTIONAL_KEYS = {
@@ -34,6 +34,7 @@ OPTIONAL_KEYS = {
     ("drop", "spin"),
     ("drop", "horizontal_speed"),
     ("board", "ends"),
+    ("contact", "model"),
     ("plate", "damping_ratio"),
     ("plate", "poisson_ratio"),
     ("plate", "mounts"),
@@ -44,7 +45,7 @@ OPTIONAL_KEYS = {
 FILE_SECTIONS = {**SECTIONS, "plate": Plate}
 PLATE_EXTRA_KEYS = ("edges", "mounts", "basis")
 # Keys whose value is a name from a list (the others are numbers).
-CHOICE_KEYS = {("board", "ends"): ENDS}
+CHOICE_KEYS = {("board", "ends"): ENDS, ("contact", "model"): CONTACT_MODELS}
 _DEG_RANGE = Range(-MAX_ANGLE / DEG, MAX_ANGLE / DEG, unit="deg")
 
 

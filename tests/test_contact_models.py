@@ -1,0 +1,98 @@
+"""`Contact.model`: the rigid law where a corner strikes alone, the compliant landing where corners strike together
+(DESIGN.md section 7). References: the rigid law's closed form (half-sine pulses), and the answer's own continuity
+through a flat landing, where the rigid law jumps by a factor of 2.5."""
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import beamdrop_jax as bd
+from beamdrop_jax._response.simulate import _simulate
+
+
+def _at(scene, degrees, **contact):
+    scene = eqx.tree_at(lambda s: s.drop.orientation, scene, jnp.asarray(math.radians(degrees)))
+    if contact:
+        c = scene.contact
+        values = dict(friction=c.friction, restitution=c.restitution, duration=c.duration, model=c.model) | contact
+        scene = eqx.tree_at(lambda s: s.contact, scene, bd.Contact(**values))
+    return scene
+
+
+@pytest.fixture(scope="module")
+def compliant_sweep():
+    """Peak stress of the default beam scene from flat to 1.8 deg by 0.05 deg (and 1e-4, 0.01 deg), every drop
+    compliant (the far corner strikes in the window), in one vmapped program."""
+    degrees = np.concatenate([[0.0, 1e-4, 0.01], np.arange(0.05, 1.8001, 0.05)])
+    base = bd.Scene()
+    scenes = jax.vmap(lambda th: eqx.tree_at(lambda s: s.drop.orientation, base, th))(jnp.radians(degrees))
+    run = jax.jit(jax.vmap(lambda s: _simulate(s, bd.Numerics(), None, "compliant")))
+    res = run(scenes)
+    return degrees, np.asarray(res.peak.stress), np.asarray(res.flags)
+
+
+def test_auto_is_continuous_through_a_flat_landing_on_a_beam(compliant_sweep):
+    degrees, stress, flags = compliant_sweep
+    assert not flags.any(), bd.Flag.describe(int(np.bitwise_or.reduce(flags)))
+    flat = stress[0]
+    # The rigid law: 133.6 MPa flat, 53.8 MPa at 1e-4 deg (single strike). The landing: one answer.
+    assert abs(stress[1] / flat - 1) < 2e-3
+    assert abs(stress[2] / flat - 1) < 1e-2
+    # No step over 5 % from flat to 1.8 deg. (Past it, at 1.83 deg, a corner's grazing return steps the peak by
+    # 6 %: the hysteretic contact keeps its set when a corner turns back before clearing the ground; the landing
+    # module's notes.)
+    upto = degrees[2:] <= 1.8 + 1e-9
+    steps = np.abs(np.diff(stress[2:][upto]) / stress[2:][upto][:-1])
+    assert steps.max() < 0.05, (degrees[2:][np.argmax(steps)], steps.max())
+    # simulate's eager "auto" takes the same path here: the far corner strikes within the window.
+    for i in (0, 1, 20):
+        res = bd.simulate(_at(bd.Scene(), degrees[i]))
+        assert float(res.landing_weight) == 1.0
+        np.testing.assert_allclose(float(res.peak.stress), stress[i], rtol=1e-6)
+
+
+def test_auto_is_the_rigid_law_where_a_corner_strikes_alone():
+    scene = bd.Scene()  # 30 deg: the far corner strikes 17 ms later, after the 7 ms window
+    auto = bd.simulate(scene)
+    rigid = bd.simulate(_at(scene, 30.0, model="rigid"))
+    assert float(auto.landing_weight) == 0.0
+    assert float(auto.peak.stress) == float(rigid.peak.stress)
+    np.testing.assert_allclose(float(auto.peak.stress) / 1e6, 68.744, atol=5e-4)
+
+
+def test_a_single_frictionless_elastic_corner_gives_the_half_sine_answer():
+    """e = 1, mu = 0: the compliant contact is a linear spring, its force a half-sine of the contact's duration
+    carrying Routh's jump (the turn during contact, O(w tau), aside): the board sees the rigid law's pulse."""
+    compliant = bd.simulate(_at(bd.Scene(), 30.0, friction=0.0, restitution=1.0, model="compliant"))
+    rigid = bd.simulate(_at(bd.Scene(), 30.0, friction=0.0, restitution=1.0, model="rigid"))
+    # The far corner strikes 9.8 ms later, after the 7 ms window: one corner. Measured: jumps 0.5 % of the larger
+    # apart, peaks 0.4 % (the housing turns by w tau during the contact, which the rigid law leaves out).
+    jumps, rigid_jumps = np.asarray(compliant.support_jumps), np.asarray(rigid.support_jumps)
+    np.testing.assert_allclose(jumps, rigid_jumps, atol=1e-2 * np.abs(rigid_jumps).max())
+    np.testing.assert_allclose(float(compliant.peak.stress), float(rigid.peak.stress), rtol=5e-3)
+
+
+def test_auto_is_continuous_through_a_flat_landing_on_a_plate():
+    scene = bd.load_scene("jesd22-board")
+    flat, tiny, small = (float(bd.simulate(_at(scene, d)).peak.strain) for d in (0.0, 1e-4, 0.01))
+    assert abs(tiny / flat - 1) < 2e-3
+    assert abs(small / flat - 1) < 1e-2
+
+
+def test_contact_model_is_checked_and_round_trips(tmp_path):
+    with pytest.raises(ValueError, match=r"Contact.model = 'rigd' \(did you mean 'rigid'\?\)"):
+        bd.Contact(model="rigd")
+    with pytest.raises(ValueError, match="Contact.duration = 0 s with Contact.model = 'compliant'"):
+        bd.Contact(duration=0.0, model="compliant")
+    scene = _at(bd.Scene(), 30.0, model="compliant")
+    bd.save_scene(scene, tmp_path / "s.toml")
+    assert bd.load_scene(tmp_path / "s.toml").contact.model == "compliant"
+    (tmp_path / "bad.toml").write_text('extends = "default"\n[contact]\nmodel = "soft"\n')
+    with pytest.raises(ValueError, match=r"\[contact\] model = 'soft'.*valid: \"auto\", \"rigid\", \"compliant\""):
+        bd.load_scene(tmp_path / "bad.toml")
+    with pytest.raises(ValueError, match="max_impacts = 3 follows rigid strikes"):
+        bd.simulate(scene, bd.Numerics(max_impacts=3))
