@@ -24,31 +24,35 @@ def _at(scene, degrees, **contact):
 
 
 @pytest.fixture(scope="module")
-def compliant_sweep():
-    """Peak stress of the default beam scene from flat to 1.8 deg by 0.05 deg (and 1e-4, 0.01 deg), every drop
-    compliant (the far corner strikes in the window), in one vmapped program."""
-    degrees = np.concatenate([[0.0, 1e-4, 0.01], np.arange(0.05, 1.8001, 0.05)])
+def auto_sweep():
+    """Peak stress and the landing's weight of the default beam scene from flat to 3 deg by 0.05 deg (and 1e-4,
+    0.01 deg), in one vmapped program on the landing's path (where the weight is 0 that path samples the rigid
+    law's half-sine, which `simulate` solves in closed form)."""
+    degrees = np.concatenate([[0.0, 1e-4, 0.01], np.arange(0.05, 3.0001, 0.05)])
     base = bd.Scene()
     scenes = jax.vmap(lambda th: eqx.tree_at(lambda s: s.drop.orientation, base, th))(jnp.radians(degrees))
     run = jax.jit(jax.vmap(lambda s: _simulate(s, bd.Numerics(), None, "compliant")))
     res = run(scenes)
-    return degrees, np.asarray(res.peak.stress), np.asarray(res.flags)
+    return degrees, np.asarray(res.peak.stress), np.asarray(res.landing_weight), np.asarray(res.flags)
 
 
-def test_auto_is_continuous_through_a_flat_landing_on_a_beam(compliant_sweep):
-    degrees, stress, flags = compliant_sweep
+def test_auto_is_continuous_through_a_flat_landing_on_a_beam(auto_sweep):
+    degrees, stress, weight, flags = auto_sweep
     assert not flags.any(), bd.Flag.describe(int(np.bitwise_or.reduce(flags)))
     flat = stress[0]
     # The rigid law: 133.6 MPa flat, 53.8 MPa at 1e-4 deg (single strike). The landing: one answer.
     assert abs(stress[1] / flat - 1) < 2e-3
     assert abs(stress[2] / flat - 1) < 1e-2
-    # No step over 5 % from flat to 1.8 deg. (Past it, at 1.83 deg, a corner's grazing return steps the peak by
-    # 6 %: the hysteretic contact keeps its set when a corner turns back before clearing the ground; the landing
-    # module's notes.)
-    upto = degrees[2:] <= 1.8 + 1e-9
-    steps = np.abs(np.diff(stress[2:][upto]) / stress[2:][upto][:-1])
-    assert steps.max() < 0.05, (degrees[2:][np.argmax(steps)], steps.max())
-    # simulate's eager "auto" takes the same path here: the far corner strikes within the window.
+    # No step over 5 % per 0.05 deg, through the blend to the rigid law (weight 1 up to 1.6 deg, 0.55 at 3 deg),
+    # but one: at 1.83 deg a corner's grazing return steps the peak by 6.8 % (the hysteretic contact keeps its
+    # set when a corner turns back before clearing the ground; the landing module's notes).
+    sweep, peaks = degrees[2:], stress[2:]
+    steps = np.abs(np.diff(peaks) / peaks[:-1])
+    grazing = np.isclose(sweep[1:], 1.85)
+    assert steps[~grazing].max() < 0.05, (sweep[1:][~grazing][np.argmax(steps[~grazing])], steps[~grazing].max())
+    assert steps[grazing].max() < 0.08
+    assert weight[0] == 1.0 and weight[-1] < 0.6 and np.all(np.diff(weight[2:]) <= 0)
+    # simulate's eager "auto" takes the same path where the landing counts.
     for i in (0, 1, 20):
         res = bd.simulate(_at(bd.Scene(), degrees[i]))
         assert float(res.landing_weight) == 1.0
@@ -56,7 +60,7 @@ def test_auto_is_continuous_through_a_flat_landing_on_a_beam(compliant_sweep):
 
 
 def test_auto_is_the_rigid_law_where_a_corner_strikes_alone():
-    scene = bd.Scene()  # 30 deg: the far corner strikes 17 ms later, after the 7 ms window
+    scene = bd.Scene()  # 30 deg: the far corner strikes 17 ms later, long after the 0.5 ms contact
     auto = bd.simulate(scene)
     rigid = bd.simulate(_at(scene, 30.0, model="rigid"))
     assert float(auto.landing_weight) == 0.0

@@ -92,10 +92,10 @@ def corner_heights(q, y, vy, theta, spin, s):
 MAX_ADVANCES = 512
 
 
-def next_contact(width, height, y, vy, theta, spin):
+def next_contact(width, height, y, vy, theta, spin, skip=None):
     """The next impact of a housing in free flight: `(s, corner_index, found)`, s the time (s) until a corner
     reaches the ground while approaching it (differentiable by the implicit function theorem), `found` False if
-    the search failed (then s = 0)."""
+    the search failed (then s = 0). `skip`: a boolean mask (4,) of corners left out (the order of `_corners`)."""
     q = _corners(width, height)
     R = 0.5 * jnp.hypot(width, height)
     sg = jax.lax.stop_gradient
@@ -125,7 +125,8 @@ def next_contact(width, height, y, vy, theta, spin):
         return ~jnp.all(done) & (i < MAX_ADVANCES)
 
     zeros = jnp.zeros(4, dtype=scale.dtype)
-    s, found, _, _ = jax.lax.while_loop(going, advance, (zeros, zeros > 1, zeros > 1, 0))
+    skipped = zeros > 1 if skip is None else jnp.asarray(skip)
+    s, found, _, _ = jax.lax.while_loop(going, advance, (zeros, zeros > 1, skipped, 0))
     c = jnp.argmin(jnp.where(found, s, jnp.inf))
     any_found = jnp.any(found)
     s0 = sg(jnp.where(any_found, s[c], 0.0))

@@ -277,8 +277,15 @@ class Landing(eqx.Module):
             early = self.solution.evaluate(mid)[_T] < target
             return jnp.where(early, mid, lo), jnp.where(early, hi, mid)
 
-        lo, hi = jax.lax.fori_loop(0, 60, halve, (self.solution.t0, self.solution.ts[-1]))
-        return self.solution.evaluate(0.5 * (lo + hi))
+        lo, hi = jax.lax.fori_loop(0, 60, halve, jax.lax.stop_gradient((self.solution.t0, self.solution.ts[-1])))
+        sigma = jax.lax.stop_gradient(0.5 * (lo + hi))
+        # The bisection's sigma carries no derivative, but the physical time at a fixed sigma moves with the
+        # inputs: one Newton step on t(sigma) = target puts d(sigma)/d(input) = -(dt/d input) / (dt/d sigma) in
+        # (implicit function theorem; its value change is below the bisection's resolution).
+        y = self.solution.evaluate(sigma)
+        rate = self.model.rhs(sigma, y)[_T]
+        return self.solution.evaluate(jnp.clip(sigma - (y[_T] - target) / rate, self.solution.t0,
+                                               self.solution.ts[-1]))
 
     def _rigid(self, t):
         """(v_G, theta, w, a_G, alpha, corner forces / (m V / T)) at scalar time t, SI."""

@@ -14,7 +14,7 @@ from .._scene.containers import Scene
 from .numerics import Numerics
 from .results import Fields, Response, StrainMap
 from .setup import _modal_solution, _span, _time_grid
-from .simulate import drop_motion, simulate
+from .simulate import landing_drive, simulate
 
 
 def response_fields(scene: Scene, numerics: Numerics | None = None, nx: int = 101, nt: int = 801,
@@ -39,14 +39,20 @@ def response_fields(scene: Scene, numerics: Numerics | None = None, nx: int = 10
     else:
         x = as_float(x, "x", f"positions on the board, [0, {length:g}] m").reshape(-1)
         require(x, "x", 0.0, length, unit="m")
-    return _fields(scene, response, numerics, x, nt)
+    return _fields(scene, response, numerics, x, nt, landing=_landing_of(response))
+
+
+def _landing_of(response: Response) -> str:
+    """The landing path `simulate` took for `response` (`landing_drive`)."""
+    weight = response.landing_weight
+    return "compliant" if weight is not None and float(weight) > 0 else "rigid"
 
 
 @filter_jit
-def _fields(scene, response, numerics, x, nt):
+def _fields(scene, response, numerics, x, nt, landing="rigid"):
     board = scene.board
     M = numerics.computed_modes
-    motion = drop_motion(scene, numerics)[0]
+    motion, numerics = landing_drive(scene, numerics, landing)[:2]
     k = jnp.arange(1, M + 1)
     used = response.n_modes
     window, t = _time_grid(board, motion, numerics, nt)
@@ -113,15 +119,15 @@ def plate_strain_map(scene: Scene, response: Response, numerics: Numerics | None
     as_int(nx, "nx", 2)
     as_int(ny, "ny", 2)
     t = response.peak.t if t is None else as_float(t, "t", Range(0.0, unit="s"))
-    return _strain_map(scene, numerics, response.n_modes, t, nx, ny)
+    return _strain_map(scene, numerics, response.n_modes, t, nx, ny, landing=_landing_of(response))
 
 
 @filter_jit
-def _strain_map(scene, numerics, used, t, nx, ny):
+def _strain_map(scene, numerics, used, t, nx, ny, landing="rigid"):
     plate = scene.board
     numerics = numerics.for_board(plate)
     M = numerics.computed_modes
-    motion = drop_motion(scene, numerics)[0]
+    motion, numerics = landing_drive(scene, numerics, landing)[:2]
     mask = (jnp.arange(1, M + 1) <= used).astype(float_dtype())
     modes = plate.modes(M)
     modal, _ = _modal_solution(modes, motion, numerics, _span(modes, motion, numerics), mask)

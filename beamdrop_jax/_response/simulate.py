@@ -78,23 +78,30 @@ def drop_motion(scene: Scene, numerics: Numerics | None = None):
     return motion, impacts, first, impacts.flags
 
 
-def _simulate(scene: Scene, numerics: Numerics, gauges=None, landing: str = "rigid") -> Response:
-    """One drop. `landing` (static): `"rigid"` the rigid law's motion, `"compliant"` the compliant landing's
-    (blended by `compliant_weight`), `"either"` both, the answer picked by the weight (traced scenes)."""
+def landing_drive(scene: Scene, numerics: Numerics, landing: str = "rigid"):
+    """What the board sees in a drop, by the landing path (`landing`, static): `(motion, numerics, impacts, first,
+    flags, weight)`. `"rigid"`: `drop_motion`'s; `"compliant"`: the compliant landing's supports' acceleration,
+    blended with the rigid law's by `compliant_weight` (`weight`), solved with diffrax."""
     motion, impacts, hit, flags = drop_motion(scene, numerics)
-    flags = combine(scene_flags(scene), flags)
-    weight = jnp.zeros_like(scene.contact.duration)
-    if landing != "rigid":
-        weight = compliant_weight(scene, numerics, hit)
-        blended, path = landing_motion(scene, numerics, weight, impacts.support_jumps[0])
-        compliant = _respond(scene.board, blended, dataclasses.replace(numerics, method="diffrax"),
-                             combine(flags, path.flags), gauges)
-    if landing == "compliant":
-        response = compliant
-    else:
-        response = _respond(scene.board, motion, numerics, flags, gauges)
-        if landing == "either":
-            response = jax.tree_util.tree_map(lambda a, b: jnp.where(weight > 0, a, b), compliant, response)
+    if landing == "rigid":
+        return motion, numerics, impacts, hit, flags, jnp.zeros_like(scene.contact.duration)
+    weight = compliant_weight(scene, numerics, hit)
+    blended, path = landing_motion(scene, numerics, weight, impacts.support_jumps[0])
+    return (blended, dataclasses.replace(numerics, method="diffrax"), impacts, hit, combine(flags, path.flags),
+            weight)
+
+
+def _simulate(scene: Scene, numerics: Numerics, gauges=None, landing: str = "rigid") -> Response:
+    """One drop. `landing` (static): `"rigid"` or `"compliant"` (`landing_drive`), or `"either"`: both, the
+    answer picked by the compliant landing's weight (traced scenes)."""
+    kinds = ("rigid", "compliant") if landing == "either" else (landing,)
+    responses = []
+    for kind in kinds:
+        motion, used, impacts, hit, flags, weight = landing_drive(scene, numerics, kind)
+        responses.append(_respond(scene.board, motion, used, combine(scene_flags(scene), flags), gauges))
+    response = responses[-1]
+    if landing == "either":
+        response = jax.tree_util.tree_map(lambda a, b: jnp.where(weight > 0, a, b), responses[1], responses[0])
     return eqx.tree_at(
         lambda r: (r.impulse, r.housing, r.impacts, r.landing_weight), response, (hit.impact, hit, impacts, weight),
         is_leaf=lambda x: x is None

@@ -116,11 +116,11 @@ class Contact(eqx.Module):
     - `"rigid"`: Routh's law at the lowest corner, one corner at a time (exact where a corner strikes alone);
     - `"compliant"`: every corner that reaches the ground carries a spring-dashpot and Coulomb friction, the
       housing's rigid motion is integrated through the board's peak window with diffrax (`compliant_landing`),
-      and the board feels the supports' acceleration history;
-    - `"auto"` (default): `"rigid"` where the first corner strikes alone within the board's peak window, the
-      compliant landing where another corner strikes in it (near-flat landings), blended where that strike comes
-      at the window's end so that the answer has no jump. With `duration = 0` (ideal impulses, which overlap
-      only exactly flat) `"auto"` is `"rigid"`.
+      every strike in it included, and the board feels the supports' acceleration history;
+    - `"auto"` (default): `"rigid"` where the first corner strikes alone (the next strike comes after its contact
+      has ended), the compliant landing where strikes overlap (near-flat landings), blended between the two over a
+      band of the next strike's time, so that the answer has no jump (`_response/landing_path.py` says what each
+      follows). With `duration = 0` (ideal impulses, which overlap only exactly flat) `"auto"` is `"rigid"`.
     """
 
     friction: Float[Array, ""]

@@ -23,7 +23,9 @@ from .._common.checks import Flag
 from .._scene.containers import Scene, check_scene
 from .._response.numerics import Numerics
 from .._response.objectives import _scene_peaks
-from .._response.simulate import drop_motion
+from .._impact.kinematics import housing_impact
+from .._response.landing_path import compliant_weight
+from .._response.simulate import _simulate, drop_motion
 from .._response.superposition import superposes, superposition_table, table_numerics, table_peaks
 from .._common.compile import filter_jit
 from .._board.base import natural_frequencies
@@ -146,6 +148,8 @@ class MonteCarloResult(eqx.Module):
     - `peak_stress` (Pa), `peak_strain` (-), `peak_deflection` (m): shape (n,), NaN for invalid drops.
     - `valid`: (n,) bool; `flags`: (n,) `Flag` masks. Invalid drops (e.g. flat landings with spin, separating
       contacts) are counted in `n_invalid` and left out of every summary.
+    - `landing_weight`: (n,) the compliant landing's share of each drop's supports' motion (`Contact.model`;
+      0 where the first corner strikes alone: the rigid law's fast path).
     """
 
     samples: Scene
@@ -154,6 +158,12 @@ class MonteCarloResult(eqx.Module):
     peak_deflection: Float[Array, " n"]
     flags: Int[Array, " n"]
     valid: Bool[Array, " n"]
+    landing_weight: Float[Array, " n"] | None = None
+
+    @property
+    def n_compliant(self) -> int:
+        """Drops that took the compliant landing (near-flat landings: `landing_weight` > 0)."""
+        return 0 if self.landing_weight is None else int(np.sum(np.asarray(self.landing_weight) > 0))
 
     @property
     def n(self) -> int:
@@ -207,7 +217,8 @@ class MonteCarloResult(eqx.Module):
         """Statistics of stress and strain in engineering units (MPa, microstrain), the invalid drops by reason,
         and with `limit` (SI) the exceedance probability of `quantity` with its 95 % Wilson interval."""
         stress, strain = self.summary("stress"), self.summary("strain")
-        out = {"drops": self.n, "drops_outside_the_model": self.n_invalid}
+        out = {"drops": self.n, "drops_outside_the_model": self.n_invalid,
+               "drops_with_a_compliant_landing": self.n_compliant}
         if self.n_invalid:
             out["outside_the_model_by_reason"] = self.invalid_reasons()
         out |= {
@@ -362,6 +373,11 @@ def montecarlo(
       sampled durations reach 0, or vary on a plate): each drop runs its own peak search, exactly as `simulate(drop, numerics)`
       does. Default numerics: `montecarlo_numerics(scene, distribution)`.
 
+    **Near-flat landings** (`Contact.model` "auto", the default): the drops whose strikes overlap
+    (`compliant_weight` > 0; about 6 % of uniform orientations on the default and JESD22 scenes) are solved again
+    on the compliant landing's path, `simulate`'s, `LANDING_BATCH` at a time, and replace the fast path's peaks
+    (`MonteCarloResult.landing_weight` says which). "compliant" takes that path for every drop, "rigid" for none.
+
     **Arguments:**
     - `key`: a `jax.random.PRNGKey`; the same key gives the same drops and results for any `batch_size` and
       device count.
@@ -454,6 +470,50 @@ def montecarlo(
                 collect()
         while pending:
             collect()
+    weight = _landings(scene, samples, axes, outputs, numerics, progress)
     # `device_put`, not `jnp.asarray`: 1.2 against 5.3 ms for an 8 MB array.
     stress, strain, deflection, flags, valid = jax.device_put(outputs + [outputs[3] == Flag.OK])
-    return MonteCarloResult(samples, stress, strain, deflection, flags, valid)
+    return MonteCarloResult(samples, stress, strain, deflection, flags, valid, jax.device_put(weight))
+
+
+LANDING_BATCH = 8
+"""Near-flat drops solved at once on the compliant path (each is two diffrax solves)."""
+
+
+def _landings(scene, samples, axes, outputs, numerics, progress):
+    """The drops whose strikes overlap (`compliant_weight` > 0 under `Contact.model` "auto", every drop under
+    "compliant"): their peaks on the compliant landing's path (`simulate`'s, default numerics), written over the
+    fast path's in `outputs`. Returns the weights (n,)."""
+    n = outputs[0].shape[0]
+    if scene.contact.model == "rigid" or numerics.max_impacts > 1:
+        return np.zeros(n)
+    weight = np.asarray(_weights(samples, axes))
+    band = np.flatnonzero(weight > 0)
+    leaves, treedef = jax.tree_util.tree_flatten(samples)
+    batched = [a is not None for a in treedef.flatten_up_to(axes)]
+    for start in tqdm(range(0, band.size, LANDING_BATCH), desc="near-flat landings", disable=not progress,
+                      leave=False):
+        idx = band[start:start + LANDING_BATCH]
+        idx = np.concatenate([idx, np.repeat(idx[-1:], LANDING_BATCH - idx.size)])  # one compiled shape
+        chunk = treedef.unflatten([np.asarray(v)[idx] if b else v for v, b in zip(leaves, batched)])
+        stress, strain, deflection, flags = _compliant_peaks(chunk, axes)
+        for out, v in zip(outputs, (stress, strain, deflection, flags)):
+            out[idx] = np.asarray(v)
+    return weight
+
+
+@filter_jit
+def _weights(samples, axes):
+    def one(s):
+        return compliant_weight(s, Numerics(), housing_impact(s))
+
+    return jax.vmap(one, in_axes=(axes,))(samples)
+
+
+@filter_jit
+def _compliant_peaks(samples, axes):
+    def one(s):
+        r = _simulate(s, Numerics(), None, "compliant")
+        return r.peak.stress, r.peak.strain, r.peak.deflection, r.flags
+
+    return jax.vmap(one, in_axes=(axes,))(samples)
