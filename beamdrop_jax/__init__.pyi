@@ -35,6 +35,8 @@ from ._impact.clatter import (
 )
 from ._impact.landing import Landing as Landing, compliant_landing as compliant_landing
 from ._impact.motion import HalfSine as HalfSine, Impulse as Impulse, PulseTrain as PulseTrain, Record as Record
+from ._impact.motion import LandingMotion as LandingMotion
+from ._response.landing_path import LandingHistories as LandingHistories, landing_histories as landing_histories
 from ._impact.motion import JESD22_B111_CONDITION_B as JESD22_B111_CONDITION_B
 from ._board.beam import ENDS as ENDS
 from ._board.base import natural_frequencies as natural_frequencies
@@ -120,6 +122,7 @@ from ._plots import (
     plot_gauge_history as plot_gauge_history,
     plot_housing_impact as plot_housing_impact,
     plot_impacts as plot_impacts,
+    plot_landing as plot_landing,
     plot_scene as plot_scene,
     plot_sensitivity as plot_sensitivity,
     plot_montecarlo as plot_montecarlo,

@@ -441,7 +441,7 @@ def test_montecarlo_csv_holds_the_result_arrays_and_shows_its_progress(tmp_path,
     montecarlo = bd.montecarlo
     monkeypatch.setattr(bd, "montecarlo", lambda *a, **k: results.append(montecarlo(*a, **k)) or results[-1])
     monkeypatch.setattr(_report, "PROGRESS_ROWS", 1000, raising=False)  # a "large" table for this test
-    assert main(["montecarlo", "-n", "3000", "--allowable-microstrain", "2000", "--no-plots",
+    assert main(["montecarlo", "-n", "3000", "--allowable-microstrain", "2000", "--no-plots", "--contact-model", "rigid",
                  "--out", str(tmp_path)]) == 0
     assert "writing montecarlo-drops.csv" in capsys.readouterr().err
     res, = results
@@ -496,7 +496,8 @@ def _visible_lines(stderr):
 
 def test_ctrl_c_while_the_csv_is_written_is_one_line_exit_130_and_no_csv(tmp_path):
     out = tmp_path / "out"
-    code, err, _ = _interrupt(tmp_path, ["montecarlo", "-n", "2000000", "--allowable-microstrain", "2000", "--out",
+    code, err, _ = _interrupt(tmp_path, ["montecarlo", "-n", "2000000", "--contact-model", "rigid",
+                                         "--allowable-microstrain", "2000", "--out",
                                          str(out), "--no-plots"],
                               b"writing montecarlo-drops.csv", after_s=0.5)
     assert code == 130, err[-2000:]
@@ -676,7 +677,8 @@ def test_optimize_keeps_the_board_in_a_region_and_says_what_the_objective_leaves
 
 
 def test_montecarlo_varies_heights_orientations_and_durations_and_says_so(tmp_path, capsys):
-    assert main(["montecarlo", "-n", "2000", "--n-modes", "4", "--allowable-microstrain", "2500", "--orientations",
+    assert main(["montecarlo", "-n", "2000", "--n-modes", "4", "--contact-model", "rigid", "--allowable-microstrain",
+                 "2500", "--orientations",
                  "10:80", "--heights", "0.5:1.5", "--durations", "0.2:1", "--no-plots", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert ("2000 random drops (orientation uniform on [10, 80] deg; height uniform on [0.5, 1.5] m; contact duration "
@@ -699,6 +701,7 @@ def test_montecarlo_figure_keeps_radial_labels_off_the_curve_and_draws_the_limit
     import beamdrop_jax as bd
 
     scene, key = bd.Scene.default(), jax.random.PRNGKey(0)
+    scene = type(scene)(scene.housing, scene.board, scene.placement, scene.drop, scene.contact.with_model("rigid"))
     res = bd.montecarlo(scene, 20000, key, numerics=bd.Numerics(n_modes=4), progress=False)
     fig = bd.plot_montecarlo(res, limit=2000e-6, quantity="strain", varied="orientation uniform on [0, 360] deg")
     polar = fig.axes[0]

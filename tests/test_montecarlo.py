@@ -7,12 +7,21 @@ import subprocess
 import sys
 import textwrap
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import beamdrop_jax as bd
+
+
+def _first_strike(scene=None):
+    """The default scene on the rigid law (the first strike): these tests check the fast paths and the direct
+    path against their references; the near-flat drops' compliant path has tests of its own."""
+    scene = bd.Scene.default() if scene is None else scene
+    return eqx.tree_at(lambda s: s.contact, scene, scene.contact.with_model("rigid"))
+
 
 NUMERICS = bd.Numerics(n_modes=6)
 
@@ -30,7 +39,7 @@ def result_distribution():
 @pytest.fixture(scope="module")
 def result():
     dist = result_distribution()
-    return bd.montecarlo(bd.Scene.default(), 600, jax.random.PRNGKey(3), dist, NUMERICS, batch_size=256,
+    return bd.montecarlo(_first_strike(), 600, jax.random.PRNGKey(3), dist, NUMERICS, batch_size=256,
                          progress=False, refine_deflection=True, superpose=False)
 
 
@@ -45,7 +54,7 @@ def test_batched_equals_one_by_one(result):
 
 
 def test_grid_deflection_is_a_close_lower_bound(result):
-    fast = bd.montecarlo(bd.Scene.default(), 600, jax.random.PRNGKey(3), result_distribution(), NUMERICS,
+    fast = bd.montecarlo(_first_strike(), 600, jax.random.PRNGKey(3), result_distribution(), NUMERICS,
                          batch_size=256, progress=False, superpose=False)
     np.testing.assert_allclose(fast.peak_stress, result.peak_stress, rtol=1e-12)
     ratio = np.asarray(fast.peak_deflection) / np.asarray(result.peak_deflection)
@@ -60,12 +69,12 @@ HARD_DROPS = bd.DropDistribution(height=("uniform", 0.3, 2.0), spin=("uniform", 
 @pytest.mark.parametrize(
     "name, scene, distribution",
     [
-        ("default", bd.Scene.default(), None),
+        ("default", _first_strike(), None),
         # Opposite support jumps: several near-equal maxima along a ridge in (x, t), where a clipped Newton step
         # from a coarse grid point used to stall 5 % low.
-        ("random height, spin, drift, friction, restitution", bd.Scene.default(), HARD_DROPS),
+        ("random height, spin, drift, friction, restitution", _first_strike(), HARD_DROPS),
         # Nine modes and many close local maxima: 2 grid points per period ranked them wrongly (1.8 % low).
-        ("0.1 ms pulse", bd.Scene.default().replace(**{"contact.duration": 1e-4}), None),
+        ("0.1 ms pulse", _first_strike().replace(**{"contact.duration": 1e-4}), None),
     ],
 )
 def test_default_numerics_within_one_percent_of_converged(name, scene, distribution):
@@ -85,7 +94,7 @@ def test_default_numerics_within_one_percent_of_converged(name, scene, distribut
 def test_clattering_defaults_within_half_a_percent_of_converged():
     """Three impacts per drop with `montecarlo_numerics(max_impacts=3)` against 32 modes with the dense, refined
     search (a converged modal series); the windows' grids are built from factors shared between drops."""
-    scene, key = bd.Scene.default(), jax.random.PRNGKey(7)
+    scene, key = _first_strike(), jax.random.PRNGKey(7)
     lean_numerics = bd.montecarlo_numerics(scene, max_impacts=3)
     assert lean_numerics.max_impacts == 3
     converged = bd.montecarlo(scene, 256, key, numerics=bd.Numerics(n_modes=32, max_impacts=3), progress=False)
@@ -99,7 +108,7 @@ def test_clattering_defaults_within_half_a_percent_of_converged():
 def hard_drops():
     """2048 random drops: the superposed peaks and a thorough direct search of the same modes (16 grid points per
     period of the top mode and per mode along the board, 8 candidates, 8 Newton steps)."""
-    scene, key = bd.Scene.default(), jax.random.PRNGKey(1)
+    scene, key = _first_strike(), jax.random.PRNGKey(1)
     numerics = bd.table_numerics(scene)
     fine = bd.Numerics(n_modes=numerics.n_modes, points_per_period=16, x_points_per_mode=16, candidates=8,
                        newton_steps=8)
@@ -135,7 +144,7 @@ def test_every_table_row_carries_its_directions_peak():
     """Half the rows are searched and half mirrored (supports swapped, x -> L - x): each row must still give the
     peak that `board_response` finds for its own direction, on a damped, pre-stressed board with a short pulse
     (so the symmetry must hold beyond the default board)."""
-    scene = bd.Scene.default().replace(**{"board.damping_ratio": 0.02, "board.axial_force": 40.0,
+    scene = _first_strike().replace(**{"board.damping_ratio": 0.02, "board.axial_force": 40.0,
                                           "contact.duration": 2e-4})
     numerics = bd.table_numerics(scene)
     n = 24
@@ -159,7 +168,7 @@ DURATION_DROPS = bd.DropDistribution(height=("uniform", 0.3, 2.0), spin=("unifor
 
 
 @pytest.mark.parametrize("name, scene, bounds", [
-    ("default", bd.Scene.default(), (1e-3, 2.5e-3)),
+    ("default", _first_strike(), (1e-3, 2.5e-3)),
     # A clamp's peak sits on a clamp, and three local maxima (two clamps, two times) trade places as the duration
     # changes: one of them can win between two table durations without being a table maximiser at either.
     ("clamped", bd.Scene(board=bd.Board(ends="clamped")), (5e-3, 5e-3)),
@@ -187,7 +196,7 @@ def test_duration_table_against_a_dense_search_per_drop(name, scene, bounds):
 
 
 def test_duration_table_flags_durations_it_does_not_span():
-    scene = bd.Scene.default()
+    scene = _first_strike()
     table = bd.superposition_table(scene, durations=(3e-4, 6e-4), n_durations=3, n_angles=16)
     assert table.cells.shape == (2, 9, 16, 4, 2, 2)
     for tau, inside in ((3e-4, True), (4.5e-4, True), (6e-4, True), (2.9e-4, False), (7e-4, False)):
@@ -208,13 +217,13 @@ def test_duration_table_flags_durations_it_does_not_span():
 
 def test_superpose_needs_one_pulse_per_drop():
     with pytest.raises(ValueError, match="max_impacts = 3"):
-        bd.montecarlo(bd.Scene.default(), 10, jax.random.PRNGKey(0), numerics=bd.Numerics(max_impacts=3),
+        bd.montecarlo(_first_strike(), 10, jax.random.PRNGKey(0), numerics=bd.Numerics(max_impacts=3),
                       superpose=True)
     # A table spans durations > 0: sampled durations at or below 0 go the direct way by default.
     spread = bd.DropDistribution(duration=("uniform", -1e-4, 1e-4))
     with pytest.raises(ValueError, match="sampled contact durations reach -"):
-        bd.montecarlo(bd.Scene.default(), 10, jax.random.PRNGKey(0), spread, superpose=True)
-    res = bd.montecarlo(bd.Scene.default(), 10, jax.random.PRNGKey(0), spread, bd.Numerics(n_modes=4),
+        bd.montecarlo(_first_strike(), 10, jax.random.PRNGKey(0), spread, superpose=True)
+    res = bd.montecarlo(_first_strike(), 10, jax.random.PRNGKey(0), spread, bd.Numerics(n_modes=4),
                         progress=False)
     negative = np.asarray(res.samples.contact.duration) < 0
     assert 0 < res.n_invalid == int(negative.sum()) < 10
@@ -235,7 +244,7 @@ def test_samples_follow_the_distribution(result):
 def test_exceedance_with_known_answer(superpose):
     # Peak stress ~ sqrt(height) exactly (elasticity 0.5), so with h ~ U(0.5, 2) and the limit at the stress of
     # h = 1.5 m, P(stress > limit) = P(h > 1.5) = 1/3.
-    scene = bd.Scene.default()
+    scene = _first_strike()
     dist = bd.DropDistribution(orientation=None, height=("uniform", 0.5, 2.0))
     res = bd.montecarlo(scene, 3000, jax.random.PRNGKey(11), dist, NUMERICS, progress=False, superpose=superpose)
     at_limit = scene.replace(**{"drop.height": 1.5})
@@ -258,7 +267,7 @@ def test_wilson_interval_reference_values():
 
 def test_invalid_drops_are_counted_not_mixed():
     dist = bd.DropDistribution(friction=("uniform", -0.5, 0.5))
-    res = bd.montecarlo(bd.Scene.default(), 400, jax.random.PRNGKey(0), dist, NUMERICS, progress=False)
+    res = bd.montecarlo(_first_strike(), 400, jax.random.PRNGKey(0), dist, NUMERICS, progress=False)
     negative = np.asarray(res.samples.contact.friction) < 0
     assert res.n_invalid == int(negative.sum()) > 100
     assert np.all(np.asarray(res.flags)[negative] & bd.Flag.FRICTION_NEGATIVE)
@@ -273,7 +282,7 @@ def test_bad_distribution_is_named():
     with pytest.raises(ValueError, match="low <= high"):
         bd.DropDistribution(friction=("uniform", 0.8, 0.1))
     with pytest.raises(ValueError, match="n = 0"):
-        bd.montecarlo(bd.Scene.default(), 0, jax.random.PRNGKey(0))
+        bd.montecarlo(_first_strike(), 0, jax.random.PRNGKey(0))
 
 
 SCRIPT = textwrap.dedent(
@@ -285,7 +294,9 @@ SCRIPT = textwrap.dedent(
     import numpy as np
     import beamdrop_jax as bd
     assert len(jax.devices()) == 8, jax.devices()
+    import equinox as eqx
     scene = bd.Scene.default()
+    scene = eqx.tree_at(lambda s: s.contact, scene, scene.contact.with_model("rigid"))
     dist = bd.DropDistribution(height=("uniform", 0.5, 2.0), spin=("uniform", -3.0, 3.0))
     numerics = bd.Numerics(n_modes=4)
     key = jax.random.PRNGKey(5)

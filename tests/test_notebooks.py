@@ -12,7 +12,7 @@ SMALL = {
     "01_thesis_chapter4.ipynb": "T_END = 2.0",
     "02_thesis_chapter5.ipynb": "N_ANGLES = 7",
     "03_board_level_drop.ipynb": "N_MODES_MAX = 4\nN_AMPLIFICATION = 5",
-    "04_monte_carlo.ipynb": "N = 4000\nLIMIT = 2500e-6",
+    "04_monte_carlo.ipynb": "N = 4000\nN_FLAT = 200\nLIMIT = 2500e-6",
     "05_placement.ipynb": "STEPS = 4\nSTARTS = 1",
     "06_speed_vs_accuracy.ipynb": "RERUN = False",
     "07_clatter_and_campaigns.ipynb": "N_ANGLES = 7\nMAX_IMPACTS = 3\nWRITE_FIGURES = False",

@@ -320,7 +320,9 @@ def _screwed_scene():
     mounts = jnp.array([(0.005, -0.021), (0.093, -0.02), (0.008, 0.021), (0.09, 0.022)])
     plate = bd.Plate(length=0.1, width=0.05, thickness=1e-3, youngs_modulus=22e9, density=1900.0,
                      poisson_ratio=0.2, edges="FFFF", mounts=mounts, mount_radius=2e-3, basis=(6, 6))
-    return eqx.tree_at(lambda s: s.board, bd.Scene.default(), plate), bd.Numerics(n_modes=6)
+    scene = eqx.tree_at(lambda s: (s.board, s.contact), bd.Scene.default(),
+                        (plate, bd.Scene.default().contact.with_model("rigid")))  # the first strike's paths
+    return scene, bd.Numerics(n_modes=6)
 
 
 def test_sensitivities_of_a_plate_obey_the_scaling_laws_and_central_differences():

@@ -7,6 +7,7 @@ from .drop import (
     plot_housing_impact as plot_housing_impact,
     plot_impact as plot_impact,
     plot_impacts as plot_impacts,
+    plot_landing as plot_landing,
     plot_plate_strain as plot_plate_strain,
     plot_scene as plot_scene,
     plot_sensitivity as plot_sensitivity,

@@ -401,3 +401,41 @@ def plot_sensitivity(rows, quantity: str = "stress", *, top: int = 15, ax=None):
                     xytext=(0, -34), textcoords="offset points", va="top", fontsize=7.5, color="0.3")
     ax.grid(axis="x", alpha=0.3)
     return fig
+
+
+def plot_landing(scene, numerics=None):
+    """A drop's compliant landing over the board's peak window: each corner's normal force (top) and the board
+    supports' normal acceleration (bottom, in g), against the rigid law's half-sine at the first corner."""
+    import matplotlib.pyplot as plt
+
+    from .._common.checks import GRAVITY
+    from .._response.landing_path import landing_histories
+    from .._response.numerics import Numerics
+
+    h = landing_histories(scene, Numerics() if numerics is None else numerics)
+    t = np.asarray(h.t) * 1e3
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7.5, 6.0), sharex=True, layout="constrained")
+    names = ("(+W/2, +H/2)", "(-W/2, +H/2)", "(-W/2, -H/2)", "(+W/2, -H/2)")
+    forces = np.asarray(h.forces)
+    for i, name in enumerate(names):
+        if forces[:, i].max() > 0:
+            top.plot(t, forces[:, i] / 1e3, label=f"corner {name}")
+    top.set_ylabel("normal force (kN)")
+    top.legend(fontsize=8)
+    weight = float(h.weight)
+    share = "the answer" if weight == 1.0 else f"{weight:.2g} of the answer, the rest the rigid law's"
+    top.set_title(f"Compliant landing at {np.degrees(float(scene.drop.orientation)):.3g} deg "
+                  f"(Contact.model {scene.contact.model!r}: {share})", fontsize=10)
+    for j, (end, colour) in enumerate((("A", "tab:blue"), ("B", "tab:red"))):
+        bottom.plot(t, np.asarray(h.support)[:, j] / GRAVITY, color=colour, label=f"support {end}: landing")
+        bottom.plot(t, np.asarray(h.rigid)[:, j] / GRAVITY, color=colour, ls="--", lw=1,
+                    label=f"support {end}: rigid law (first strike)")
+    bottom.axhline(0.0, color="0.6", lw=0.8)
+    touching = np.flatnonzero(forces.max(axis=1) > 0)
+    end = t[touching[-1]] if touching.size else t[-1]
+    bottom.set_xlim(0.0, min(t[-1], max(1.3 * end, 1.3 * float(scene.contact.duration) * 1e3)))
+    bottom.set_xlabel(f"time from the first touch (ms; no strike after this plot's end in the {t[-1]:.3g} ms "
+                      "peak window)")
+    bottom.set_ylabel("support acceleration (g)")
+    bottom.legend(fontsize=8, ncol=2)
+    return fig

@@ -18,12 +18,15 @@ there, and everywhere a late strike slaps the board (the default scene at 3 deg:
 `"rigid"` follows the first strike only; `Numerics(max_impacts=K)` follows K rigid strikes whatever the model.
 """
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, Float
 
 from .._common.checks import GRAVITY
 from .._impact.clatter import next_contact
-from .._impact.kinematics import HousingImpact, _in_ground
+from .._common.compile import filter_jit
+from .._impact.kinematics import HousingImpact, _in_ground, _support_jumps, housing_impact
 from .._impact.landing import Landing, _landing, housing_corners
 from .._impact.motion import HalfSine, LandingMotion
 from .._scene.containers import Scene, board_ends
@@ -102,3 +105,29 @@ def landing_motion(scene: Scene, numerics: Numerics, weight, rigid_jumps,
     rigid = jax.vmap(HalfSine(rigid_jumps[0], rigid_jumps[1], scene.contact.duration).acceleration)(t)
     a = weight * compliant + (1.0 - weight) * rigid
     return LandingMotion(t, a[:, 0], a[:, 1], scene.contact.duration, weight), landing
+
+
+class LandingHistories(eqx.Module):
+    """A drop's landing over the peak window, for figures and tables: times `t` (s), each corner's normal force
+    `forces` (n, 4) (N, corners in `housing_corners`' order), the supports' normal acceleration `support` (n, 2)
+    (m/s^2, ends A and B; blended as `simulate` uses it) and the rigid law's half-sine `rigid` (n, 2), and the
+    compliant landing's `weight`."""
+
+    t: Float[Array, " n"]
+    forces: Float[Array, "n 4"]
+    support: Float[Array, "n 2"]
+    rigid: Float[Array, "n 2"]
+    weight: Float[Array, ""]
+
+
+@filter_jit
+def landing_histories(scene: Scene, numerics: Numerics) -> LandingHistories:
+    """The landing of a concrete drop as `LandingHistories` (the compliant landing whatever `Contact.model`; its
+    `weight` is the model's)."""
+    hit = housing_impact(scene, law=numerics.law)
+    jumps = _support_jumps(scene, hit, scene.drop.orientation)
+    weight = compliant_weight(scene, numerics, hit)
+    motion, landing = landing_motion(scene, numerics, jnp.ones_like(weight), jumps)
+    rigid = jax.vmap(HalfSine(jumps[0], jumps[1], scene.contact.duration).acceleration)(motion.t)
+    return LandingHistories(motion.t, landing.forces(motion.t)[..., 1], jnp.stack([motion.aA, motion.aB], -1),
+                            rigid, weight)

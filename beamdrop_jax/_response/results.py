@@ -79,7 +79,11 @@ class Response(eqx.Module):
         r = jax.device_get(self)  # NumPy from here: arithmetic on the host, no small programs to compile
         p = r.peak
         out = {}
-        if r.impulse is not None:
+        weight = 0.0 if r.landing_weight is None else float(r.landing_weight)
+        if weight > 0:  # the rigid law's impulse is not what the board felt
+            out["landing"] = ("compliant: corners strike together (Contact.model)" if weight == 1.0 else
+                              f"{weight:.3g} compliant landing + {1 - weight:.3g} rigid law (strikes nearly overlap)")
+        elif r.impulse is not None:
             flat = r.housing is not None and bool(r.housing.flat)
             out["impulse_Ns"] = r.impulse.P
             out["contact_mode"] = "flat landing (translation)" if flat else ImpactMode(int(r.impulse.mode)).label

@@ -142,6 +142,10 @@ class Contact(eqx.Module):
             raise ValueError(f"Contact.model = {model!r}{hint}; valid: {', '.join(CONTACT_MODELS)}")
         self.model = model
 
+    def with_model(self, model: str) -> "Contact":
+        """The same contact with another `model`."""
+        return Contact(self.friction, self.restitution, self.duration, model=model)
+
     def __check_init__(self):
         check_ranges(self)
         if self.model == "compliant" and is_concrete(self.duration) and np.any(np.asarray(self.duration) <= 0):

@@ -353,6 +353,7 @@ def montecarlo(
     progress: bool = True,
     refine_deflection: bool = False,
     superpose: bool | None = None,
+    max_landings: int = 4000,
 ) -> MonteCarloResult:
     """Simulate n random drops of `scene` with fields drawn from `distribution`.
 
@@ -377,6 +378,8 @@ def montecarlo(
     (`compliant_weight` > 0; about 6 % of uniform orientations on the default and JESD22 scenes) are solved again
     on the compliant landing's path, `simulate`'s, `LANDING_BATCH` at a time, and replace the fast path's peaks
     (`MonteCarloResult.landing_weight` says which). "compliant" takes that path for every drop, "rigid" for none.
+    That path costs about 0.5 s a drop on 2 cores (two diffrax solves: the landing, the board): more than
+    `max_landings` such drops is refused before any is solved, with the count and the time it would take.
 
     **Arguments:**
     - `key`: a `jax.random.PRNGKey`; the same key gives the same drops and results for any `batch_size` and
@@ -470,7 +473,7 @@ def montecarlo(
                 collect()
         while pending:
             collect()
-    weight = _landings(scene, samples, axes, outputs, numerics, progress)
+    weight = _landings(scene, samples, axes, outputs, numerics, progress, max_landings)
     # `device_put`, not `jnp.asarray`: 1.2 against 5.3 ms for an 8 MB array.
     stress, strain, deflection, flags, valid = jax.device_put(outputs + [outputs[3] == Flag.OK])
     return MonteCarloResult(samples, stress, strain, deflection, flags, valid, jax.device_put(weight))
@@ -480,7 +483,11 @@ LANDING_BATCH = 8
 """Near-flat drops solved at once on the compliant path (each is two diffrax solves)."""
 
 
-def _landings(scene, samples, axes, outputs, numerics, progress):
+LANDING_SECONDS = 0.5
+"""Measured cost of a near-flat drop on the compliant path, s (2 cores; `beamdrop bench --landings`)."""
+
+
+def _landings(scene, samples, axes, outputs, numerics, progress, max_landings):
     """The drops whose strikes overlap (`compliant_weight` > 0 under `Contact.model` "auto", every drop under
     "compliant"): their peaks on the compliant landing's path (`simulate`'s, default numerics), written over the
     fast path's in `outputs`. Returns the weights (n,)."""
@@ -489,17 +496,42 @@ def _landings(scene, samples, axes, outputs, numerics, progress):
         return np.zeros(n)
     weight = np.asarray(_weights(samples, axes))
     band = np.flatnonzero(weight > 0)
+    if band.size > max_landings:
+        raise ValueError(
+            f"{band.size} of the {n} drops ({100 * band.size / n:.2g} %) land nearly flat, where corners strike "
+            f"together; each is solved on the compliant landing's path, about {LANDING_SECONDS:g} s a drop on 2 "
+            f"cores (about {band.size * LANDING_SECONDS / 60:.0f} min here), more than max_landings = "
+            f"{max_landings} allows. Valid: fewer drops, max_landings >= {band.size} (--max-landings) to pay for "
+            'them, or Contact(model="rigid") (--contact-model rigid: the first strike only, fast, but it misses '
+            "the near-flat drops' peaks)")
+    for out, v in zip(outputs, solve_landings(samples, axes, band, progress)):
+        out[band] = v
+    return weight
+
+
+def solve_landings(samples, axes, idx, progress: bool = False):
+    """Peak stress, strain, deflection and flags of drops `idx` of a batch on the compliant landing's path
+    (`simulate`'s, default numerics), `LANDING_BATCH` at a time: four arrays of len(idx)."""
+    idx = np.asarray(idx, dtype=int)
+    out = [np.empty(idx.size, dtype) for dtype in (float_dtype(),) * 3 + (np.int32,)]
     leaves, treedef = jax.tree_util.tree_flatten(samples)
     batched = [a is not None for a in treedef.flatten_up_to(axes)]
-    for start in tqdm(range(0, band.size, LANDING_BATCH), desc="near-flat landings", disable=not progress,
+    for start in tqdm(range(0, idx.size, LANDING_BATCH), desc="near-flat landings", disable=not progress,
                       leave=False):
-        idx = band[start:start + LANDING_BATCH]
-        idx = np.concatenate([idx, np.repeat(idx[-1:], LANDING_BATCH - idx.size)])  # one compiled shape
-        chunk = treedef.unflatten([np.asarray(v)[idx] if b else v for v, b in zip(leaves, batched)])
-        stress, strain, deflection, flags = _compliant_peaks(chunk, axes)
-        for out, v in zip(outputs, (stress, strain, deflection, flags)):
-            out[idx] = np.asarray(v)
-    return weight
+        part = idx[start:start + LANDING_BATCH]
+        padded = np.concatenate([part, np.repeat(part[-1:], LANDING_BATCH - part.size)])  # one compiled shape
+        chunk = treedef.unflatten([np.asarray(v)[padded] if b else v for v, b in zip(leaves, batched)])
+        for o, v in zip(out, _compliant_peaks(chunk, axes)):
+            o[start:start + part.size] = np.asarray(v)[:part.size]
+    return out
+
+
+def landing_weights(scene: Scene, n: int, key, distribution: "DropDistribution | None" = None):
+    """The compliant landing's weight (`compliant_weight`) of n random drops of `scene` drawn as `montecarlo`
+    draws them: > 0 marks the near-flat drops that take the compliant path."""
+    distribution = DropDistribution() if distribution is None else distribution
+    samples = distribution.sample(scene, n, key)
+    return _weights(samples, sample_axes(samples, scene))
 
 
 @filter_jit

@@ -18,10 +18,21 @@ FLAT_FACE = {0: 3, 1: 4, 2: 1, 3: 2}
 def _landing(scene, res) -> str:
     """'onto a corner', or 'flat onto face 3 (bottom, -e2)' when the housing lands flat (two corners at once)."""
     hit = getattr(res, "housing", res)  # a Response or a HousingImpact
+    weight = getattr(res, "landing_weight", None)
+    if (hit is None or not bool(hit.flat)) and weight is not None and float(weight) > 0:
+        return "nearly flat (corners strike together)"
     if hit is None or not bool(hit.flat):
         return "onto a corner"
     face = FLAT_FACE[round(float(scene.drop.orientation) / (math.pi / 2)) % 4]
     return f"flat onto face {face} ({FACES[face]})"
+
+
+def _impact_figure(bd, scene, res):
+    """(figure, name): the compliant landing's forces and support accelerations where the drop took it, else the
+    rigid law's impulse diagram."""
+    if float(res.landing_weight) > 0:
+        return bd.plot_landing(scene), "landing.png"
+    return bd.plot_impacts(scene, res), "impact.png"
 
 
 def cmd_impact(args, output):
@@ -78,7 +89,8 @@ def cmd_drop(args, output):
     output.summary(_tidy_positions(res.summary(), size_mm),
                    f"Drop of {_scene_name(args)}: {float(scene.drop.height):g} m {_landing(scene, res)} at "
                    f"{math.degrees(float(scene.drop.orientation)):.1f} deg, "
-                   + (f"half-sine contact {tau * 1e3:g} ms" if tau > 0 else "ideal impulse (contact duration 0)")
+                   + (("compliant contact, " if float(res.landing_weight) > 0 else "half-sine contact, ")
+                      + f"{tau * 1e3:g} ms per corner strike" if tau > 0 else "ideal impulse (contact duration 0)")
                    + board_text)
     if numerics.max_impacts > 1:
         imp = res.impacts
@@ -114,7 +126,7 @@ def cmd_drop(args, output):
             strain_map = bd.plate_strain_map(scene, res, numerics)
             _save(output, bd.plot_scene(scene, res), "scene.png", args)
             _save(output, bd.plot_plate_strain(strain_map, res, scene.board), "strain_map.png", args)
-            _save(output, bd.plot_impacts(scene, res), "impact.png", args)
+            _save(output, *_impact_figure(bd, scene, res), args)
         return
     if gauge_x is not None:
         fields = bd.response_fields(scene, numerics, x=[gauge_x * 1e-3], nt=2001)
@@ -135,7 +147,7 @@ def cmd_drop(args, output):
         _save(output, bd.plot_scene(scene, res), "scene.png", args)
         _save(output, bd.plot_stress_map(fields, res), "stress_map.png", args)
         _save(output, bd.plot_deflected_board(fields, res, thickness=scene.board.thickness), "deflection.png", args)
-        _save(output, bd.plot_impacts(scene, res), "impact.png", args)
+        _save(output, *_impact_figure(bd, scene, res), args)
 
 
 def cmd_campaign(args, output):
@@ -289,7 +301,7 @@ def cmd_montecarlo(args, output):
     # A chunk larger than -n would only be padding (the drops and results do not depend on the chunk size).
     batch_size = args.batch_size and min(args.batch_size, args.n)
     res = bd.montecarlo(scene, args.n, jax.random.PRNGKey(args.seed), distribution=distribution, numerics=numerics,
-                        batch_size=batch_size, progress=not args.json)
+                        batch_size=batch_size, progress=not args.json, max_landings=args.max_landings)
     limit = args.allowable_microstrain * 1e-6
     varied = distribution.describe().replace("every other field", "; ".join(fixed_text + ["every other field"]))
     output.report["varied"] = varied

@@ -234,7 +234,17 @@ def _cli_note(note: str, numerics) -> str:
 def _scene(args):
     import beamdrop_jax as bd
 
-    return bd.load_scene(args.scene) if args.scene else bd.Scene.default()
+    scene = bd.load_scene(args.scene) if args.scene else bd.Scene.default()
+    model = getattr(args, "contact_model", None)
+    if model:
+        scene = eqx_replace_contact(scene, scene.contact.with_model(model))
+    return scene
+
+
+def eqx_replace_contact(scene, contact):
+    import equinox as eqx
+
+    return eqx.tree_at(lambda s: s.contact, scene, contact)
 
 
 def _gauge(text):
