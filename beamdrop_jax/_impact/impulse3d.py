@@ -27,10 +27,12 @@ solver), and slip never stops again.
 with the state (s, rho = log |u_t|, p, P_t, W) (W the normal work, the integral of u_n dp) the equations
 ds/dtau = f - (s . f) s, drho/dtau = s . f, dp/dtau = e^rho, dP_t/dtau = -mu s e^rho, dW/dtau = u_n e^rho are smooth
 and bounded, and the stop is rho -> -inf, reached exponentially in tau. (s is a unit vector, not an angle, so a
-planar slip stays planar to the last bit.) The solve stops where the rest of the way is a straight line to within
-1e-13 (`_settled`: slip shrinks and the direction has reached its ray; at once on a planar path), or at the latest
-where |u_t| falls to 1e-13 |u0| (`_SLIP_STOP`); the tail to the exact stop is then added along the current
-direction (p += |u_t| / |s . f|).
+planar slip stays planar to the last bit.) The solve stops where the rest of the way to the stop is a straight
+line to within 1e-13 (`_settled`: slip shrinks and the direction has reached its ray; at once on a planar path),
+or at the latest where |u_t| falls to 1e-13 |u0| (`_SLIP_STOP`); the tail to the exact stop is then added along
+the current direction (p += |u_t| / |s . f|). Likewise where growing slip has turned onto s* to within 1e-13
+(`_aligned`) the rest is the straight line along s*: without this a slip that grows slowly along s* is stiff
+(the direction relaxes far faster than the slip grows) and costs thousands of steps.
 
 **Events and derivatives.** Compression ends at u_n = 0 (the first crossing, p_c); Poisson ends at (1 + e) p_c,
 Stronge where W = (1 - e^2) W(p_c) (restitution work = -e^2 times the compression work). The sliding phase runs in
@@ -38,8 +40,9 @@ at most two segments (to compression or slip stop; then to the law's end or slip
 solve (tolerances 1e-12) whose events end it at the end of the step where they hold; a reached target is then
 located inside that step by Newton's method, integrating back from the step's end with the solver's own method.
 The rest of the path after a stop is closed form. The solves are differentiated by their variational equations
-(forward sensitivities of the state at the final clock time, `_flow`: a linear map on the tangents, which reverse
-mode transposes; no derivative passes through diffrax's loops), and each event's state is moved onto its event
+(forward sensitivities of the state at the final clock time, chained through the segments by `_walk`'s custom
+derivative: a linear map on the tangents, which reverse mode transposes; no derivative passes through diffrax's
+loops), and each event's state is moved onto its event
 surface by one first-order step along the path, which gives its derivative the implicit-function form. No Python
 control flow on traced values: the result `jit`s, `vmap`s and differentiates in forward and reverse mode with
 respect to K, u0, mu and e.
@@ -158,6 +161,7 @@ class _Walk(eqx.Module):
     p_c: Array
     W_c: Array
     stopped: Array  # slip stopped at z (then z stays there)
+    aligned: Array  # slip runs along the invariant direction from z on (then z stays there)
     done: Array  # the law's end reached at z
     failed: Array
     steps: Array
@@ -242,6 +246,24 @@ def _settled(c: _Contact, y, target: _Target):
     return shrinks & (log_err <= c.log_stop) & target.clear_of(c, y, tail)
 
 
+def _aligned(c: _Contact, y, can_stick):
+    """Whether slip, growing, has turned onto the invariant direction s* to within 1e-13 (relative), so that the
+    rest of the way is the straight line along s*: s* is the one ray with g = 0 and h > 0 (friction cannot hold
+    the contact), and it attracts (g' = -h - mu s_perp . A s_perp < 0). Off it by delta ~ |g / g'|, the
+    direction closes in as exp(g' tau) while p runs at r exp(h tau), so taking the line from here misses the path
+    by about mu r delta / (|g'| - h) in P_t, and as much again through u_n in P_n. (Without this a slip that grows
+    slowly along s* is stiff: the direction relaxes |g'| / h times faster than the slip grows.)"""
+    tiny = jnp.finfo(y.dtype).tiny
+    s, f, g, h = c.slip(y)
+    s_perp = jnp.stack([-s[1], s[0]])
+    dg = -h - c.mu * (s_perp @ (c.A @ s_perp))
+    closing = jnp.maximum(-dg - h, tiny)
+    delta = jnp.abs(g) / jnp.maximum(-dg, tiny)
+    log_err = y[2] + jnp.log(delta + tiny) + jnp.log(2.0 * (1.0 + c.mu) * (1.0 + jnp.linalg.norm(c.b) / c.Knn)
+                                                    / closing)
+    return ~can_stick & (h > 0) & (dg < 0) & (log_err <= c.log_stop)
+
+
 def _pack(c: _Contact):
     """The contact's numbers as one vector (9,): A (row-major), b, K_nn, u0_n, mu."""
     return jnp.concatenate([c.A.reshape(4), c.b, jnp.stack([c.Knn, c.u0n, c.mu])])
@@ -262,13 +284,13 @@ def _advance(solver, term, Y, dtau, substeps: int = 2):
     return Y
 
 
-def _solve(theta, y0, log_stop, target: _Target, idle, tol, sensitivities: bool):
+def _solve(theta, y0, log_stop, target: _Target, can_stick, idle, tol, sensitivities: bool):
     """The sliding solve from y0 to the first event, each event at the end of the step where it holds; a reached
     target is then located within that last step (Newton's method safeguarded by bisection, each try integrated
     afresh by the solver's method from a known end of the step). With `sensitivities` it also carries S = d y / d (y0, theta)
     (7 x 16) by the variational equations dS/dtau = J_y S + [0 | J_theta]. Returns y (at the located target, else
-    at the end), S (or None), the event mask (reached, stopped, settled) and the accepted steps. No derivative
-    passes through diffrax here (`_flow` supplies them), so its loops are plain `lax` ones."""
+    at the end), S (or None), the event mask (reached, stopped, settled, aligned) and the accepted steps. No derivative
+    passes through diffrax here (`_walk` supplies them), so its loops are plain `lax` ones."""
     c = _unpack(theta, log_stop)
 
     def field(tau, Y, args):
@@ -289,6 +311,9 @@ def _solve(theta, y0, log_stop, target: _Target, idle, tol, sensitivities: bool)
     def settled(t, Y, args, **kwargs):
         return _settled(c, Y[0], target)
 
+    def aligned(t, Y, args, **kwargs):
+        return _aligned(c, Y[0], can_stick)
+
     def skip(t, Y, args, **kwargs):
         return idle
 
@@ -297,10 +322,10 @@ def _solve(theta, y0, log_stop, target: _Target, idle, tol, sensitivities: bool)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(field), solver, 0.0, _TAU_END, None, Y0,
         stepsize_controller=diffrax.PIDController(rtol=tol, atol=tol),
-        event=diffrax.Event((reach, stop, settled, skip)), max_steps=_MAX_STEPS, saveat=diffrax.SaveAt(t1=True),
+        event=diffrax.Event((reach, stop, settled, aligned, skip)), max_steps=_MAX_STEPS, saveat=diffrax.SaveAt(t1=True),
         adjoint=diffrax.ForwardMode(), throw=False,
     )
-    reached, stopped, settles, _ = sol.event_mask
+    reached, stopped, settles, aligns, _ = sol.event_mask
     Y_end = jax.tree_util.tree_map(lambda x: x[-1], sol.ys)
 
     # Newton's method safeguarded by bisection, integrating from the nearer known end of the last step: its end, or
@@ -328,69 +353,127 @@ def _solve(theta, y0, log_stop, target: _Target, idle, tol, sensitivities: bool)
     dtau = jnp.where(reached, dtau, 0.0)
     Y_out = _advance(solver, diffrax.ODETerm(field), jax.tree_util.tree_map(
         lambda a, b: jnp.where(reached, a, b), base, Y_end), dtau)
-    masks = jnp.stack([reached, stopped, settles]).astype(y0.dtype)
+    masks = jnp.stack([reached, stopped, settles, aligns]).astype(y0.dtype)
     S = Y_out[1] if sensitivities else None
     return Y_out[0], S, masks, sol.stats["num_accepted_steps"].astype(y0.dtype)
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(5,))
-def _flow(theta, y0, log_stop, target, idle, tol: float):
-    """`_solve` as a function of (theta, y0), differentiated by its variational equations (forward sensitivities,
-    a linear map on the tangents, so reverse mode transposes it): the derivative of the state at the solve's
-    final tau, held fixed. The event's own dependence is the callers' (`_segment` moves each event state onto its
-    event surface, which gives the implicit derivative whatever the final tau's); the other arguments get none."""
-    y, _, masks, steps = _solve(theta, y0, log_stop, target, idle, tol, sensitivities=False)
-    return y, masks, steps
+def _target(walk: _Walk, p_c, W_c, e, stronge) -> _Target:
+    """Before compression: u_n = 0. After it: Poisson's p = (1 + e) p_c, Stronge's restitution work -e^2 W_c."""
+    one, nil = jnp.ones_like(p_c), jnp.zeros_like(p_c)
+    law_p = jnp.where(stronge, nil, one)
+    after = walk.compressed
+    return _Target(a_un=jnp.where(after, nil, one), a_p=jnp.where(after, law_p, nil),
+                   a_W=jnp.where(after, one - law_p, nil), p_T=(1.0 + e) * p_c, W_T=-(e**2) * W_c)
 
 
-@_flow.defjvp
-def _flow_jvp(tol, primals, tangents):
-    theta, y0, log_stop, target, idle = primals
-    d_theta, d_y0 = tangents[0], tangents[1]
-    y, S, masks, steps = _solve(theta, y0, log_stop, target, idle, tol, sensitivities=True)
-    dy = S @ jnp.concatenate([d_y0, d_theta])
-    return (y, masks, steps), (dy, jnp.zeros_like(masks), jnp.zeros_like(steps))
-
-
-@functools.partial(jax.jit, static_argnums=3)  # traced once for both segments (the second is a cache hit)
-def _segment(c: _Contact, walk: _Walk, target: _Target, tol: float):
-    """Slide from `walk` until the target is reached or slip stops; an idle walk (stopped, done or failed) passes
-    through."""
-    busy = ~(walk.stopped | walk.done | walk.failed)
-    y0 = _to_state(walk.z, c.log_stop)
+def _segment(theta, e, stronge, log_stop, walk: _Walk, tol: float, sensitivities: bool):
+    """Slide from `walk` until the target is reached, slip stops or it runs along the invariant direction; an idle
+    walk (stopped, aligned, done or failed) passes through. Returns the next walk and, with `sensitivities`, the
+    derivative of its numbers v = (z, p_c, W_c) with respect to (theta, e, v) as three matrices."""
+    c = _unpack(theta, log_stop)
+    target = _target(walk, walk.p_c, walk.W_c, e, stronge)
+    busy = ~(walk.stopped | walk.aligned | walk.done | walk.failed)
+    hold = jnp.linalg.solve(c.A, c.b)
+    can_stick = hold @ hold <= c.mu**2
+    y0 = _to_state(walk.z, log_stop)
     # What holds at the start is decided here, not by the solve's first look at its events: slip already below the
-    # stop threshold (at the start, or left so by the compression event), the target already reached (e = 0), or
-    # the rest of the way to the stop already straight (a planar slip that slows).
-    at_rest = busy & (y0[2] <= c.log_stop)
+    # stop threshold (at the start, or left so by the compression event), the target already reached (e = 0), the
+    # rest of the way to the stop already straight (a planar slip that slows) or slip already on the ray s*.
+    at_rest = busy & (y0[2] <= log_stop)
     at_target = busy & ~at_rest & (target.value(c, y0) >= 0)
     straight = busy & ~at_rest & ~at_target & _settled(c, y0, target)
-    idle = ~busy | at_rest | at_target | straight
+    on_ray = busy & ~at_rest & ~at_target & ~straight & _aligned(c, y0, can_stick)
+    idle = ~busy | at_rest | at_target | straight | on_ray
     # A reached target comes back located; a stop needs no location (the tail to it is extrapolated).
-    y, masks, steps = _flow(_pack(c), y0, c.log_stop, target, idle, tol)
+    y, S, masks, steps = _solve(theta, y0, log_stop, target, can_stick, idle, tol, sensitivities)
     reached = (masks[0] > 0) & ~idle | at_target
     stopped = (masks[1] > 0) | (masks[2] > 0)
     stopped = stopped & ~idle | straight
-    failed = ~idle & ~reached & ~stopped
-    # Onto the event surfaces: one first-order step for the located target's residual (which gives the derivative
-    # its implicit-function form); or the straight tail to the stop.
-    rate = target.rate(c, y)
-    z_reach = _step_along(c, y, -_safe_div(target.value(c, y), rate, rate > 0))
-    _, _, _, h = c.slip(y)
-    z_stop = _step_along(c, y, _safe_div(jnp.exp(y[2]), -h, h < 0)).at[4:6].set(0.0)
-    z = jnp.where(reached, z_reach, jnp.where(stopped, z_stop, walk.z))
-    z = jnp.where(at_rest, walk.z.at[4:6].set(0.0), z)
-    stopped = stopped | at_rest
+    aligned = (masks[3] > 0) & ~idle | on_ray
+    failed = ~idle & ~reached & ~stopped & ~aligned
     first = reached & ~walk.compressed
-    return _Walk(
-        z=jnp.where(first, z.at[3].set(0.0), z),  # the work counts from compression on
-        compressed=walk.compressed | first,
-        p_c=jnp.where(first, z[0], walk.p_c),
-        W_c=jnp.where(first, z[3], walk.W_c),
-        stopped=walk.stopped | stopped,
-        done=walk.done | (reached & walk.compressed),
-        failed=walk.failed | failed,
-        steps=walk.steps + steps.astype(jnp.int32),
-    )
+
+    def onward(y, v, theta, e):
+        """The walk's next numbers (z, p_c, W_c) from the solve's end state y: onto the event surface by one
+        first-order step for the located target's residual (which gives the derivative its implicit-function
+        form), or the straight tail to the stop, or the start of the line along s*."""
+        c = _unpack(theta, log_stop)
+        z_old, p_c, W_c = v[:6], v[6], v[7]
+        target = _target(walk, p_c, W_c, e, stronge)
+        rate = target.rate(c, y)
+        z_reach = _step_along(c, y, -_safe_div(target.value(c, y), rate, rate > 0))
+        _, _, _, h = c.slip(y)
+        z_stop = _step_along(c, y, _safe_div(jnp.exp(y[2]), -h, h < 0)).at[4:6].set(0.0)
+        z_ray = _step_along(c, y, 0.0)
+        z = jnp.where(reached, z_reach, jnp.where(stopped, z_stop, jnp.where(aligned, z_ray, z_old)))
+        z = jnp.where(at_rest, z_old.at[4:6].set(0.0), z)
+        # The work counts from compression on.
+        return jnp.concatenate([jnp.where(first, z.at[3].set(0.0), z), jnp.where(first, z[0], p_c)[None],
+                                jnp.where(first, z[3], W_c)[None]])
+
+    v = jnp.concatenate([walk.z, jnp.stack([walk.p_c, walk.W_c])])
+    v_next = onward(y, v, theta, e)
+    nxt = _Walk(z=v_next[:6], compressed=walk.compressed | first, p_c=v_next[6], W_c=v_next[7],
+                stopped=walk.stopped | stopped | at_rest, aligned=walk.aligned | aligned,
+                done=walk.done | (reached & walk.compressed), failed=walk.failed | failed,
+                steps=walk.steps + steps.astype(jnp.int32))
+    if not sensitivities:
+        return nxt, None
+    # d v_next = G_y dy + G_v dv + G_theta dtheta + G_e de, with dy = S_y0 (d y0 / d z) dz + S_theta dtheta.
+    G_y, G_v, G_theta, G_e = jax.jacfwd(onward, argnums=(0, 1, 2, 3))(y, v, theta, e)
+    dy_dv = S[:, :7] @ jax.jacfwd(_to_state)(v[:6], log_stop) @ jnp.eye(6, 8, dtype=v.dtype)
+    return nxt, (G_y @ S[:, 7:] + G_theta, G_e, G_y @ dy_dv + G_v)
+
+
+def _start(z0, dtype) -> _Walk:
+    zero, no = jnp.zeros((), dtype), jnp.array(False)
+    return _Walk(z=z0, compressed=no, p_c=zero, W_c=zero, stopped=no, aligned=no, done=no, failed=no,
+                 steps=jnp.zeros((), jnp.int32))
+
+
+def _numbers(walk: _Walk):
+    """The walk's numbers v = (z, p_c, W_c) and its status (compressed, stopped, aligned, done, failed, steps) as
+    floats (the custom derivative's outputs)."""
+    v = jnp.concatenate([walk.z, jnp.stack([walk.p_c, walk.W_c])])
+    status = jnp.stack([walk.compressed, walk.stopped, walk.aligned, walk.done, walk.failed]).astype(v.dtype)
+    return v, jnp.concatenate([status, walk.steps.astype(v.dtype)[None]])
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(4,))
+def _walk(theta, e, stronge, z0, tol: float):
+    """The sliding walk from z0 = (0, 0, 0, 0, u0_t / |u0|): at most two segments (to compression or a stop; then
+    to the law's end or a stop), one compiled solve in a `fori_loop`. Returns its numbers and status (`_numbers`).
+    Differentiated as a whole (forward sensitivities of each solve at its final tau, chained through the event
+    projections by `_segment`): no derivative passes through diffrax's loops, and the derivative is a linear map on
+    the tangents, which reverse mode transposes."""
+    log_stop = _log_stop(z0.dtype)
+    walk = jax.lax.fori_loop(0, 2, lambda _, w: _segment(theta, e, stronge, log_stop, w, tol, False)[0],
+                             _start(z0, z0.dtype))
+    return _numbers(walk)
+
+
+@_walk.defjvp
+def _walk_jvp(tol, primals, tangents):
+    theta, e, stronge, z0 = primals
+    d_theta, d_e, _, d_z0 = tangents
+    log_stop = _log_stop(z0.dtype)
+
+    def step(_, carry):
+        walk, J_theta, J_e, J_v = carry  # d v / d theta (8 x 9), d v / d e (8,), d v / d v0 (8 x 8)
+        walk, (G_theta, G_e, G_v) = _segment(theta, e, stronge, log_stop, walk, tol, True)
+        return walk, G_v @ J_theta + G_theta, G_v @ J_e + G_e, G_v @ J_v
+
+    eye = jnp.eye(8, dtype=z0.dtype)
+    walk, J_theta, J_e, J_v = jax.lax.fori_loop(
+        0, 2, step, (_start(z0, z0.dtype), jnp.zeros((8, 9), z0.dtype), jnp.zeros(8, z0.dtype), eye))
+    v, status = _numbers(walk)
+    dv = J_theta @ d_theta + J_e * d_e + J_v[:, :6] @ d_z0
+    return (v, status), (dv, jnp.zeros_like(status))
+
+
+def _log_stop(dtype):
+    return jnp.log(jnp.asarray(_SLIP_STOP if dtype == jnp.float64 else 1e-6, dtype))
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -423,14 +506,14 @@ def _invariant_direction(A, b, mu):
 
 
 def _after_stop(c: _Contact, e, stronge, walk: _Walk):
-    """The final normal impulse p_f, tangential impulse and compression (p_c) once the walk has stopped, along the
-    straight piece that follows: sticking (|A^-1 b| <= mu) or sliding along the invariant direction."""
+    """The final normal impulse p_f, tangential impulse and compression (p_c) once the walk has stopped or aligned,
+    along the straight piece that follows: sticking (|A^-1 b| <= mu) or sliding along the invariant direction."""
     hold = jnp.linalg.solve(c.A, c.b)  # A^-1 b
     sticks = hold @ hold <= c.mu**2
     safe = (jnp.eye(2, dtype=c.A.dtype), jnp.array([1.0, 0.0], dtype=c.A.dtype), jnp.zeros_like(c.mu))
     A, b, mu = (jnp.where(sticks, s, v) for s, v in zip(safe, (c.A, c.b, c.mu)))
     s_star, _ = _invariant_direction(A, b, mu)
-    dPt = jnp.where(sticks, -hold, -c.mu * s_star)
+    dPt = jnp.where(sticks & ~walk.aligned, -hold, -c.mu * s_star)
     dun = c.Knn + c.b @ dPt  # > 0 on both
     p_s, Pt_s, W_s = walk.z[0], walk.z[1:3], walk.z[3]
     un_s = c.u_n(p_s, Pt_s)
@@ -522,7 +605,6 @@ def impulse_3d(K: Float[Array, "3 3"], u0: Float[Array, "3"], friction, restitut
 def _impulse_3d(K, u0, mu, e, stronge) -> Impact3D:
     dtype = K.dtype
     tol = _TOL if dtype == jnp.float64 else 1e-6
-    stop = _SLIP_STOP if dtype == jnp.float64 else 1e-6
     separating = u0[2] >= 0
     valid = (_positive_definite(K) & jnp.all(jnp.isfinite(u0)) & FRICTION.contains(mu) & RESTITUTION.contains(e))
     use = valid & ~separating
@@ -534,30 +616,17 @@ def _impulse_3d(K, u0, mu, e, stronge) -> Impact3D:
     k = jnp.trace(K_)
     V = jnp.linalg.norm(u0_)
     Kh, uh = K_ / k, u0_ / V
-    c = _Contact(A=Kh[:2, :2], b=Kh[:2, 2], Knn=Kh[2, 2], u0n=uh[2], mu=mu_, log_stop=jnp.log(jnp.asarray(stop, dtype)))
-
-    zero = jnp.zeros((), dtype)
-    no = jnp.array(False)
-    # (Slip below the stop threshold from the start stops at p = 0: the first segment sees to it.)
-    walk = _Walk(z=jnp.concatenate([jnp.zeros(4, dtype), uh[:2]]), compressed=no, p_c=zero, W_c=zero, stopped=no,
-                 done=no, failed=no, steps=jnp.zeros((), jnp.int32))
-
-    def segment(walk):
-        # Before compression: to u_n = 0. After it: Poisson to p = (1 + e) p_c, Stronge to the restitution work
-        # -e^2 W_c (W_c < 0 the compression work).
-        law_p = jnp.where(stronge, 0.0, 1.0)
-        one, nil = jnp.ones((), dtype), jnp.zeros((), dtype)
-        target = _Target(a_un=jnp.where(walk.compressed, nil, one), a_p=jnp.where(walk.compressed, law_p, nil),
-                         a_W=jnp.where(walk.compressed, 1.0 - law_p, nil), p_T=(1.0 + e_) * walk.p_c,
-                         W_T=-(e_**2) * walk.W_c)
-        return _segment(c, walk, target, tol)
-
-    for _ in range(2):  # (not a fori_loop: linearising one around the solves costs seconds of tracing)
-        walk = segment(walk)
+    c = _Contact(A=Kh[:2, :2], b=Kh[:2, 2], Knn=Kh[2, 2], u0n=uh[2], mu=mu_, log_stop=_log_stop(dtype))
+    # Slip below the stop threshold from the start stops at p = 0 (the first segment sees to it).
+    v, status = _walk(_pack(c), e_, stronge, jnp.concatenate([jnp.zeros(4, dtype), uh[:2]]), tol)
+    flag = status[:5] > 0
+    walk = _Walk(z=v[:6], compressed=flag[0], p_c=v[6], W_c=v[7], stopped=flag[1], aligned=flag[2], done=flag[3],
+                 failed=flag[4], steps=status[5].astype(jnp.int32))
     p_lin, Pt_lin, p_c_lin, holds = _after_stop(c, e_, stronge, walk)
-    p_f = jnp.where(walk.stopped, p_lin, walk.z[0])
-    Pt_f = jnp.where(walk.stopped, Pt_lin, walk.z[1:3])
-    p_c = jnp.where(walk.stopped, p_c_lin, walk.p_c)
+    straight = walk.stopped | walk.aligned
+    p_f = jnp.where(straight, p_lin, walk.z[0])
+    Pt_f = jnp.where(straight, Pt_lin, walk.z[1:3])
+    p_c = jnp.where(straight, p_c_lin, walk.p_c)
 
     scale = V / k
     P = jnp.concatenate([Pt_f, p_f[None]]) * scale
