@@ -16,9 +16,9 @@ as lam grows (A is positive definite), from |A^-1 b| / mu > 1 at lam = 0 (no sti
 so there is **exactly one** outward invariant direction, found by bisection on lam in [0, |b|] and a Newton step
 (which also carries the implicit derivative). The direction equation s x f(s) = 0 has two or four roots on the
 circle; the others have lam < 0: rays along which slip comes *to* a stop, not ones it can leave along. (In 2D:
-s* = -sign(B3), lam = |B3| - mu B1, Routh's reversal. It is the diverging invariant ray of the slip flow of
-Batlle 1996 and Stronge, Impact Mechanics, ch. 5; at s* the direction is also stable, ds/dphi of s x f being
--lam - mu s_perp . A s_perp < 0.) Along s* slip grows linearly and du_n/dp = K_nn - mu b . s* >=
+s* = -sign(B3), lam = |B3| - mu B1, Routh's reversal. It is the diverging invariant ray of the slip flow: Batlle
+1996; Stronge, Impact Mechanics, ch. 5. At s* the direction is also stable: d(s x f)/dphi = -lam -
+mu s_perp . A s_perp < 0.) Along s* slip grows linearly and du_n/dp = K_nn - mu b . s* >=
 K_nn - b . A^-1 b > 0. Either way the path after the stop is a straight line in impulse space, exactly (no
 solver), and slip never stops again.
 
@@ -38,14 +38,14 @@ the current direction (p += |u_t| / |s . f|). Likewise where growing slip has tu
 Stronge where W = (1 - e^2) W(p_c) (restitution work = -e^2 times the compression work). The sliding phase runs in
 at most two segments (to compression or slip stop; then to the law's end or slip stop), each a diffrax `Dopri8`
 solve (tolerances 1e-12) whose events end it at the end of the step where they hold; a reached target is then
-located inside that step by Newton's method, integrating back from the step's end with the solver's own method.
-The rest of the path after a stop is closed form. The solves are differentiated by their variational equations
-(forward sensitivities of the state at the final clock time, chained through the segments by `_walk`'s custom
-derivative: a linear map on the tangents, which reverse mode transposes; no derivative passes through diffrax's
-loops), and each event's state is moved onto its event
-surface by one first-order step along the path, which gives its derivative the implicit-function form. No Python
-control flow on traced values: the result `jit`s, `vmap`s and differentiates in forward and reverse mode with
-respect to K, u0, mu and e.
+located inside that step by Newton's method safeguarded by bisection, integrating from a known end of the step
+with the solver's own method. The rest of the path after a stop (or once on s*) is closed form. The solves are
+differentiated by their variational equations (forward sensitivities of the state at the final clock time,
+chained through the segments by `_walk`'s custom derivative: a linear map on the tangents, which reverse mode
+transposes; no derivative passes through diffrax's loops), and each event's state is moved onto its event surface
+by one first-order step along the path, which gives its derivative the implicit-function form. No Python control
+flow on traced values: the result `jit`s, `vmap`s and differentiates in forward and reverse mode with respect to
+K, u0, mu and e.
 
 Everything inside is nondimensional: K / trace(K), u / |u0|, impulses / (|u0| / trace(K)).
 """
