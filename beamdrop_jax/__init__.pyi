@@ -16,6 +16,7 @@ from ._scene.containers import (
 )
 from ._scene.file import embedded_scenes as embedded_scenes, load_scene as load_scene, save_scene as save_scene
 from ._impact.routh import ImpactMode as ImpactMode, ImpactResult as ImpactResult, routh_impulse as routh_impulse
+from ._impact.impulse3d import Impact3D as Impact3D, impulse_3d as impulse_3d
 from ._impact.kinematics import (
     HousingImpact as HousingImpact,
     approach_velocity as approach_velocity,
