@@ -4,6 +4,7 @@ hand-computed translation it must be, and the CSV / CLI outputs."""
 import csv
 import math
 
+import equinox as eqx
 import numpy as np
 import pytest
 
@@ -42,7 +43,9 @@ def test_drop_lists_of_the_standards():
 
 
 def test_face_and_corner_drops_are_the_translations_they_must_be():
-    scene = bd.Scene.default()  # board along e1: its normal is e2
+    default = bd.Scene.default()  # board along e1: its normal is e2
+    # The rigid law: a flat landing is the exact translation.
+    scene = eqx.tree_at(lambda s: s.contact, default, default.contact.with_model("rigid"))
     e = float(scene.contact.restitution)
     result = bd.campaign(scene, "mil-std-810h-516-iv")
     v = math.sqrt(2 * G * 1.22)
@@ -64,6 +67,12 @@ def test_face_and_corner_drops_are_the_translations_they_must_be():
     # Faces 5 and 6 are out of the plane: NaN, and never the worst.
     assert np.isnan(result.stress[by_label["face 5"]]) and not result.drops[by_label["face 6"]].in_plane
     assert result.drops[result.worst].label in ("face 1", "face 3", "edge 1-5", "edge 3-5", "edge 1-6", "edge 3-6")
+    # The default model lands a face drop compliantly: the campaign's row is simulate's flat landing.
+    auto = bd.campaign(default, "ista-1a")
+    face = next(i for i, d in enumerate(auto.drops) if d.label == "face 3")
+    flat = bd.simulate(default.replace(**{"drop.orientation": 0.0, "drop.height": auto.drops[face].height}))
+    assert float(flat.landing_weight) == 1.0
+    np.testing.assert_allclose(auto.stress[face], float(flat.peak.stress), rtol=1e-6)
 
 
 def test_jesd22_is_the_board_level_half_sine():
@@ -102,7 +111,8 @@ def test_json_reports_drops_outside_the_plane_as_null(tmp_path, capsys):
     import json
 
     scene = bd.Scene.default()
-    args = ["campaign", "--standard", "mil-std-810h-516-iv", "--json", "--no-plots", "--out", str(tmp_path)]
+    args = ["campaign", "--standard", "mil-std-810h-516-iv", "--json", "--no-plots", "--contact-model", "rigid",
+            "--out", str(tmp_path)]
     assert main(args) == 0
     drops = {d["label"]: d for d in json.loads(capsys.readouterr().out)["drops"]}
     assert drops["face 5"]["peak_stress_MPa"] is None and drops["face 6"]["peak_strain_microstrain"] is None
