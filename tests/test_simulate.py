@@ -88,6 +88,7 @@ def test_vmap_simulate_equals_loop():
 
 def test_flags_under_jit_and_eager_errors():
     scene = bd.Scene.default()
+    scene = bd.Scene(scene.housing, scene.board, scene.placement, scene.drop, scene.contact.with_model("rigid"))
     with pytest.raises(ValueError, match=r"contact.restitution = 1.5 .* \[0, 1\]"):
         scene.replace(**{"contact.restitution": 1.5})
     bad = eqx.tree_at(lambda s: s.contact.restitution, scene, jnp.asarray(1.5))
