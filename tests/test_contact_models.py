@@ -107,5 +107,5 @@ def test_contact_model_is_checked_and_round_trips(tmp_path):
     (tmp_path / "bad.toml").write_text('extends = "default"\n[contact]\nmodel = "soft"\n')
     with pytest.raises(ValueError, match=r"\[contact\] model = 'soft'.*valid: \"auto\", \"rigid\", \"compliant\""):
         bd.load_scene(tmp_path / "bad.toml")
-    with pytest.raises(ValueError, match="max_impacts = 3 follows rigid strikes"):
+    with pytest.raises(ValueError, match=r"max_impacts = 3 \(--max-impacts\) follows rigid strikes"):
         bd.simulate(scene, bd.Numerics(max_impacts=3))

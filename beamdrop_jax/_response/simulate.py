@@ -167,8 +167,10 @@ def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Res
     require_single(scene, "simulate")
     scene.board.check_gauges(points := _gauge_points(gauges))
     if scene.contact.model == "compliant" and numerics.max_impacts > 1:
-        raise ValueError(f'Numerics.max_impacts = {numerics.max_impacts} follows rigid strikes: use Contact(model='
-                         '"rigid") or "auto" with it (the compliant landing follows every strike in the peak window)')
+        raise ValueError(f"Numerics.max_impacts = {numerics.max_impacts} (--max-impacts) follows rigid strikes, and "
+                         'Contact.model = "compliant" (--contact-model compliant) follows every strike in the peak '
+                         'window itself; valid: max_impacts = 1 with "compliant", or model "rigid" or "auto" with '
+                         "max_impacts > 1")
     response = _simulate_jit(scene, numerics, points, landing=_landing_kind(scene, numerics))
     if is_concrete(scene, response.flags) and int(response.flags):
         _raise_eagerly(scene, numerics, response.flags, response.impacts, "simulate")
