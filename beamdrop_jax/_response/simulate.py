@@ -102,6 +102,9 @@ def _simulate(scene: Scene, numerics: Numerics, gauges=None, landing: str = "rig
     response = responses[-1]
     if landing == "either":
         response = jax.tree_util.tree_map(lambda a, b: jnp.where(weight > 0, a, b), responses[1], responses[0])
+    elif landing == "rigid" and scene.contact.model == "auto" and numerics.max_impacts == 1:
+        # The rigid law's answer, and whether the drop wants the landing instead (`simulate` then runs that).
+        weight = compliant_weight(scene, numerics, hit)
     return eqx.tree_at(
         lambda r: (r.impulse, r.housing, r.impacts, r.landing_weight), response, (hit.impact, hit, impacts, weight),
         is_leaf=lambda x: x is None
@@ -109,19 +112,13 @@ def _simulate(scene: Scene, numerics: Numerics, gauges=None, landing: str = "rig
 
 
 def _landing_kind(scene: Scene, numerics: Numerics) -> str:
-    """Which path `_simulate` takes (`landing`): decided eagerly for a concrete scene, both under tracing."""
+    """Which path `_simulate` takes first (`landing`): a concrete scene on "auto" the rigid law's, whose response
+    says (`landing_weight`) whether the drop wants the landing; a traced one both."""
     if scene.contact.model == "rigid" or numerics.max_impacts > 1:
         return "rigid"
     if scene.contact.model == "compliant":
         return "compliant"
-    if not is_concrete(scene):
-        return "either"
-    return "compliant" if float(_weight_program(scene, numerics)) > 0 else "rigid"
-
-
-@filter_jit
-def _weight_program(scene: Scene, numerics: Numerics):
-    return compliant_weight(scene, numerics, housing_impact(scene, law=numerics.law))
+    return "rigid" if is_concrete(scene) else "either"
 
 
 _simulate_jit = filter_jit(_simulate)
@@ -171,7 +168,14 @@ def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Res
                          'Contact.model = "compliant" (--contact-model compliant) follows every strike in the peak '
                          'window itself; valid: max_impacts = 1 with "compliant", or model "rigid" or "auto" with '
                          "max_impacts > 1")
-    response = _simulate_jit(scene, numerics, points, landing=_landing_kind(scene, numerics))
+    kind = _landing_kind(scene, numerics)
+    response = _simulate_jit(scene, numerics, points, landing=kind)
+    if kind == "rigid" and scene.contact.model == "auto" and numerics.max_impacts == 1:
+        wanted = response.landing_weight
+        if not is_concrete(wanted):  # a concrete scene closed over by a user's jit
+            response = _simulate_jit(scene, numerics, points, landing="either")
+        elif float(wanted) > 0:  # strikes overlap: the compliant landing
+            response = _simulate_jit(scene, numerics, points, landing="compliant")
     if is_concrete(scene, response.flags) and int(response.flags):
         _raise_eagerly(scene, numerics, response.flags, response.impacts, "simulate")
     return response
