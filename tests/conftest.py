@@ -65,6 +65,7 @@ _LONGEST = (
     "test_beam_ends.py::test_superposed_montecarlo_on_an_asymmetric_board",
     "test_plate.py::test_mount_",
     "test_validation.py::test_plate_agrees_with_opensees",
+    "test_validation.py::test_held_out_shell_layouts",
 )
 
 

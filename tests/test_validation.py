@@ -161,6 +161,156 @@ def test_plate_agrees_with_opensees_shell_elements():
     np.testing.assert_allclose(fe.peak_time, np.asarray(res.gauges.peak_time), atol=2 * fe.dt)
 
 
+# Held-out shell layouts (issue 38): plates the package was not tuned on (not the SFSF plate above, nor notebook 09's
+# JESD22 board), against OpenSees shells (ShellDKGQ) on two meshes, and against a much finer run of the package.
+# Every point of interest (mounts, gauges) lies on a uniform grid of the coarse FE mesh, so both meshes are uniform.
+# Per layout: plate (1 mm FR4-like, E 24 GPa, rho 1850 kg/m^3, nu 0.3), support jumps (dvA, dvB m/s, tau s), gauges
+# (m), FE meshes (coarse, fine), FE step; Newmark's step error there is below 1e-3 (measured against half the step on
+# the fine mesh: 7e-4 on the screwed plate, 2e-4 elsewhere).
+SHELL_LAYOUTS = {
+    # Supported along its long sides, free ends, a short pulse: the modes come in families across the width (1, 2, 3
+    # half-waves); modes 6 to 14 barely participate, and the 3-half-wave family starts at mode 15 (9 f1, f tau = 7.7,
+    # a third of the first mode's participation and 8.5 times its curvature at the centre).
+    "FSFS strip, 0.2 ms pulse": dict(
+        plate=dict(length=0.048, width=0.02, edges="FSFS"), jumps=(1.0, 0.5, 2e-4),
+        gauges=((0.024, 0.0), (0.006, 0.004)), meshes=(2e-3, 1e-3), dt=2e-6),
+    # Hinged along end A (a connector), free elsewhere, propped by one screw near end B.
+    "SFFF, one screw": dict(
+        plate=dict(length=0.06, width=0.04, edges="SFFF", mounts=((0.052, 0.004),), mount_radius=3e-3),
+        jumps=(1.0, 0.8, 3e-4), gauges=((0.024, -0.012), (0.04, -0.004)), meshes=(4e-3, 2e-3), dt=1e-5),
+    # Free edges on five irregular screws, one inside; a gauge 17 mm from the screws, between them, and one 5.7 mm from
+    # the inner screw, where a point support's strain is steep (log r).
+    "FFFF, five screws": dict(
+        plate=dict(length=0.08, width=0.048, edges="FFFF", mount_radius=2.5e-3,
+                   mounts=((0.008, -0.016), (0.072, -0.02), (0.076, 0.016), (0.012, 0.02), (0.044, -0.004))),
+        jumps=(1.0, 0.7, 3e-4), gauges=((0.032, 0.008), (0.048, 0.0)), meshes=(4e-3, 2e-3), dt=1e-5),
+}
+SHELL_MATERIAL = dict(thickness=1e-3, youngs_modulus=24e9, density=1850.0, poisson_ratio=0.3)
+SHELL_SETTINGS = {
+    "default": (None, bd.Numerics()),
+    # What a screwed board needs (the JESD22 board's: DESIGN.md section 6, Numerics' notes).
+    "converged": ((20, 20), bd.Numerics(max_modes=48, pulse_modes=3, frequency_growth=1)),
+    # The references of the convergence check: a 28 x 28 basis and 96 modes (on the screwed plate it agrees with a
+    # 36 x 36 basis and 128 modes within 1e-4); on the strip, whose basis converges at 12 x 12 (estimate 3e-5), 96
+    # modes in a 16 x 16 basis (within 1e-4 of 28 x 28, and 8 s of compiling cheaper).
+    "finer": ((28, 28), bd.Numerics(n_modes=96, frequency_growth=1)),
+    "finer modes": ((16, 16), bd.Numerics(n_modes=96, frequency_growth=1)),
+}
+# The package's runs per layout; each compiles its own program (10 to 20 s), so only those that say something new:
+# where the default run says converged=True it is the converged run, checked against "finer" (the strip's and the
+# screwed plate's "converged" settings say converged too, or fail the mode check 16 vs 32 modes).
+SHELL_RUNS = {"FSFS strip, 0.2 ms pulse": ("default", "finer modes"), "SFFF, one screw": ("default", "finer"),
+              "FFFF, five screws": ("default", "converged")}
+# Where the package says converged=True and is off by more than the tolerance: bugs, kept visible as expected
+# failures (the test fails once one no longer reproduces, to have its entry removed).
+SHELL_KNOWN_BUGS = {
+    # The mode check compares 5 modes with 10 (the "converged" settings 6 with 12, as wrong): mode 15, the first of
+    # the 3-half-wave family, adds 1.5 % to the centre's strain during the pulse, and neither count reaches it.
+    ("FSFS strip, 0.2 ms pulse", "default", "OpenSees"): "the mode check (5 against 10 modes) misses the strip's "
+    "3-half-wave family: converged=True (estimate 3e-5) with the centre gauge 1.8 % off OpenSees",
+    ("FSFS strip, 0.2 ms pulse", "default", "finer"): "the mode check (5 against 10 modes) misses the strip's "
+    "3-half-wave family: converged=True (estimate 3e-5) with the centre gauge 1.5 % off a 96-mode run",
+    # Both estimates read low: the mode check is capped at max_modes = 16 (12 modes against 16: 2e-4, where 96 modes
+    # move a gauge by 1e-3) and the basis check (12 against 16 functions: 9e-4) sees half of the basis's error.
+    ("SFFF, one screw", "default", "finer"): "the capped mode check (12 against 16 modes) and the basis check (12 "
+    "against 16 functions) read low: converged=True (estimate 9.3e-4) with a gauge 2.0e-3 off a 28 x 28, 96-mode run",
+}
+
+
+def _shell_plate(layout, basis=None):
+    return bd.Plate(**SHELL_MATERIAL, **SHELL_LAYOUTS[layout]["plate"], basis=basis)
+
+
+def _shell_package(layout, settings):
+    basis, numerics = SHELL_SETTINGS[settings]
+    case = SHELL_LAYOUTS[layout]
+    return bd.board_response(_shell_plate(layout, basis), bd.HalfSine(*case["jumps"]), numerics,
+                             gauges=case["gauges"])
+
+
+def _shell_fe(layout, window):
+    """OpenSees on the coarse and the fine mesh over [0, window]."""
+    case = SHELL_LAYOUTS[layout]
+    return tuple(bd.opensees_plate_response(_shell_plate(layout), bd.HalfSine(*case["jumps"]), window,
+                                            gauges=case["gauges"], element_size=h, dt=case["dt"])
+                 for h in case["meshes"])
+
+
+def _known_bug(failures, key):
+    """Assert that nothing failed, except where `key` is a known bug: that must fail. Its reason, or None."""
+    if key in SHELL_KNOWN_BUGS:
+        assert failures, f"{key}: the known bug no longer reproduces ({SHELL_KNOWN_BUGS[key]}); remove its entry"
+        return SHELL_KNOWN_BUGS[key]
+    assert not failures, (key, failures)
+    return None
+
+
+@pytest.mark.parametrize("layout", sorted(SHELL_LAYOUTS))
+def test_held_out_shell_layouts_against_opensees_and_a_finer_run(layout):
+    """A layout's whole check in one test, so that pytest-xdist does not split one layout's runs (the compiles) between
+    its workers: frequencies and gauges against OpenSees, the notes where the package says it is not converged, and
+    converged=True against a much finer run of the package."""
+    runs = SHELL_RUNS[layout]
+    res = {s: _shell_package(layout, s) for s in runs}
+    # OpenSees over 1.3 x the latest gauge peak of the package's runs.
+    window = 1.3 * max(float(np.max(np.asarray(r.gauges.peak_time))) for r in res.values())
+    coarse, fine = _shell_fe(layout, window)
+    bugs = []
+
+    # Frequencies. The shell mesh converges as h^2: Richardson's extrapolation from the two meshes, its correction
+    # (extrapolated - fine) the FE error. The Ritz frequencies are upper bounds converging from above in the basis
+    # (slowly on point supports): the change between the package's two runs is their error.
+    package, previous = (np.asarray(res[s].frequencies[:4]) for s in (runs[-1], runs[0]))
+    extrapolated = fine.frequencies + (fine.frequencies - coarse.frequencies) / 3
+    fe_error, ritz_error = np.abs(extrapolated - fine.frequencies), np.abs(previous - package)
+    print(f"\n{layout}: frequencies (Hz) package {package} ({runs[-1]}; {runs[0]} {previous}), OpenSees "
+          f"{coarse.frequencies} / {fine.frequencies} -> {extrapolated} (FE error {fe_error})")
+    assert np.all(np.abs(package - extrapolated) <= fe_error + ritz_error + 1e-4 * package)
+
+    # Gauges. The fine mesh's FE error is at most its change from the coarse mesh (h halved, convergence of order
+    # >= 1), plus 1e-3 for the step; peak times to two steps and the meshes' difference.
+    fe_error = np.abs(fine.peak_strain - coarse.peak_strain) + 1e-3 * fine.peak_strain
+    for s in (s for s in runs if not s.startswith("finer")):
+        r = res[s]
+        strain, times, c = np.asarray(r.gauges.peak_strain), np.asarray(r.gauges.peak_time), r.convergence
+        print(f"{layout}, {s}: converged={bool(r.converged)} ({int(r.n_modes)} modes against {int(r.check_modes)}: "
+              f"{float(c.modes):.1e}, gauges {float(c.gauges):.1e}; basis {float(c.basis):.1e}); gauges {strain} at "
+              f"{times} s; OpenSees {fine.peak_strain} at {fine.peak_time} s (coarse mesh {coarse.peak_strain}): off "
+              f"by {np.abs(strain / fine.peak_strain - 1)}, FE error {fe_error / fine.peak_strain}")
+        np.testing.assert_allclose(times, fine.peak_time, atol=2 * fine.dt + float(np.max(np.abs(
+            fine.peak_time - coarse.peak_time))))
+        if bool(r.converged):
+            # converged=True: within convergence_rtol of OpenSees, to the FE error.
+            bound = fe_error + 1e-3 * strain
+            bugs.append(_known_bug([f"gauge {g}: |package - FE| = {d:.3g} > {b:.3g}" for g, (d, b) in enumerate(
+                zip(np.abs(strain - fine.peak_strain), bound)) if d > b], (layout, s, "OpenSees")))
+        else:
+            # converged=False: one note names the estimate that failed and its fix, and the error the package
+            # reports covers its distance from OpenSees, to the FE error.
+            scene = bd.Scene(board=_shell_plate(layout, SHELL_SETTINGS[s][0]))
+            notes = [n for n in bd.response_notes(scene, r) if n.startswith("not converged")]
+            print(f"  {notes}")
+            assert len(notes) == 1 and any(fix in notes[0] for fix in (
+                "raise Plate.basis", "raise Numerics.max_modes", "raise Numerics.pulse_modes")), notes
+            assert np.all(np.abs(strain - fine.peak_strain) <= fe_error + float(r.error_estimate) * strain)
+
+    # converged=True implies agreement with a much finer run of the package within 2e-3 (twice convergence_rtol: the
+    # estimates are first-order ones), at the gauges and at the peak.
+    if runs[-1].startswith("finer"):
+        finer = res[runs[-1]]
+        reference = np.append(np.asarray(finer.gauges.peak_strain), float(finer.peak.strain))
+        claimed = [s for s in runs[:-1] if bool(res[s].converged)]
+        assert claimed, f"{layout}: no run says converged"
+        for s in claimed:
+            value = np.append(np.asarray(res[s].gauges.peak_strain), float(res[s].peak.strain))
+            change = np.abs(value / reference - 1)
+            print(f"{layout}, {s} against finer: gauges and peak strain {value} against {reference} (its own "
+                  f"estimate {float(finer.error_estimate):.1e}): off by {change}")
+            bugs.append(_known_bug([f"off by {change}"] if np.any(change > 2e-3) else [], (layout, s, "finer")))
+    if any(bugs):
+        pytest.xfail("; ".join(b for b in bugs if b))
+
+
 # A board-level drop test (Fuchs & Major, Frattura ed Integrita Strutturale 15 (2011) 64-73): the board oscillated
 # at 280 Hz, the strain at its centre at the first deflection was 2e-3, its largest peak-to-peak deflection about
 # 5 mm, under 1500 g over a 1 ms pulse as the paper states. The paper does not dimension its board, so notebook 09
