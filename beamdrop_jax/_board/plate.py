@@ -403,6 +403,18 @@ class PlateModes(AbstractModal):
                          derivatives=derivatives)
         return tuple(v @ self.coeffs for v in values) if derivatives else values @ self.coeffs
 
+    def first(self, n_modes: int) -> "PlateModes":
+        """The lowest `n_modes` of these modes (no new eigensolve)."""
+        return PlateModes(self.plate, self.omega2[:n_modes], self.coeffs[:, :n_modes])
+
+    @property
+    def n_free(self) -> int:
+        """How many of these modes are the plate's (static): the rest are the directions its mounts hold, moved
+        above the spectrum by `_eigen`."""
+        basis = self.plate.basis[0] * self.plate.basis[1]
+        mounts = 0 if self.plate.mounts is None else self.plate.mounts.shape[-2]
+        return min(self.omega2.shape[0], basis - mounts)
+
     def frequencies(self, n_modes: int | None = None) -> Float[Array, " n"]:
         """omega_k, rad/s (the lowest `n_modes`; all without)."""
         return jnp.sqrt(jnp.maximum(self.omega2, jnp.finfo(self.omega2.dtype).tiny ** 0.25))[:n_modes]

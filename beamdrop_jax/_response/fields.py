@@ -74,14 +74,16 @@ def _not_converged(board, response: Response) -> str:
     name, value = c.worst() if c is not None else ("modes", float(response.error_estimate))
     change = f"{value * 100:.2g} % (Numerics.convergence_rtol = 0.1 %)"
     if name == "basis":
-        return (f"not converged: a Ritz basis 4 functions larger each way changes the peak or a gauge by {change}; "
-                f"raise Plate.basis (now {board.basis}; `basis = [nx, ny]` in the scene file's [plate], at most 40)")
+        return (f"not converged: the Ritz basis's error at the peak or a gauge, from a basis 4 functions larger each "
+                f"way, is {change}; raise Plate.basis (now {board.basis}; `basis = [nx, ny]` in the scene file's "
+                "[plate], at most 40)")
     what = "the peak" if name == "modes" else "a gauge's peak strain"
     # A check with fewer modes than the answer means the count hit its cap.
-    fix = ("raise Numerics.max_modes" if int(response.check_modes) < int(response.n_modes)
-           else "raise Numerics.pulse_modes (modes up to f_k x duration >= "
+    capped = int(response.check_modes) < int(response.n_modes) or (c is not None and c.check_cap)
+    fix = ("raise Numerics.max_modes" if capped else "raise Numerics.pulse_modes (modes up to f_k x duration >= "
            f"{Numerics().for_board(board).pulse_band:g} by default)")
-    return f"not converged: {int(response.check_modes)} modes change {what} by {change}; {fix}"
+    return (f"not converged: {int(response.check_modes)} modes change {what} by {change} (against "
+            f"{int(response.n_modes)}); {fix}")
 
 
 def response_notes(scene: Scene, response: Response) -> list[str]:

@@ -18,16 +18,21 @@ from .._impact.routh import ImpactMode
 class Convergence(eqx.Module):
     """What the convergence check measured, each a relative change (0 where the model is exact):
 
-    - `modes`: of the peak stress, with `Response.check_modes` modes instead of `Response.n_modes`;
+    - `modes`: of the peak stress, with `Response.check_modes` modes instead of `Response.n_modes` (a plate under
+      half-sine pulses: every mode of its Ritz basis, at the peak's point and time; `check_cap` is then True, as
+      the answer keeps all `Numerics.max_modes` computed modes);
     - `gauges`: of the gauges' peak strains with the check's modes (the largest over the gauges; 0 without);
     - `basis`: of the peak stress and the gauges' peak strains with a Ritz basis 4 functions larger each way, at
-      the same points and times (a plate; 0 for a beam, whose modes are exact).
+      the same points and times, extrapolated to the error of this basis (a plate; 0 for a beam, whose modes are
+      exact).
 
-    `Response.converged` holds when each is within `Numerics.convergence_rtol`; `worst()` names the largest."""
+    `Response.error_estimate` is the larger of `modes` and `gauges` plus `basis`; `Response.converged` holds when
+    it is within `Numerics.convergence_rtol`; `worst()` names the largest."""
 
     modes: Float[Array, ""]
     gauges: Float[Array, ""]
     basis: Float[Array, ""]
+    check_cap: bool = eqx.field(static=True, default=False)
 
     def worst(self) -> tuple[str, float]:
         """(name, value) of the largest estimate (concrete results)."""

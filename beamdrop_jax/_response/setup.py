@@ -145,11 +145,12 @@ def _raise_if_window(board, motion, numerics: Numerics, flags, what: str, with_c
     )
 
 
-def _setup(board, motion, numerics: Numerics, with_check: bool) -> _Setup:
+def _setup(board, motion, numerics: Numerics, with_check: bool, model=None) -> _Setup:
+    """`model`: the board's lowest `Numerics.computed_modes` modes when the caller has solved them already."""
     numerics = numerics.for_board(board)
     M = numerics.computed_modes
     # A plate's modes come from one eigensolve, shared by everything below.
-    model = board.modes(M)
+    model = board.modes(M) if model is None else model
     used, check = _mode_counts(model, motion, numerics)
     nx, nt = numerics.grid_shape()
     window, t = _time_grid(model, motion, numerics, nt)
