@@ -562,20 +562,26 @@ def _line(out, label):
     return next(line for line in out.splitlines() if line.strip().startswith(label))
 
 
-def test_flat_plate_drop_prints_plain_numbers_and_names_the_cli_option(capsys):
+def test_flat_plate_drop_prints_plain_numbers_and_names_the_cli_option(capsys, tmp_path):
     assert main(["drop", "--scene", "jesd22-board", "--no-plots"]) == 0
     out = capsys.readouterr().out
     assert "flat onto face 3 (bottom, -e2)" in out and "onto a corner" not in out
     assert _line(out, "peak stress y (mm)").split()[-1] == "0"  # on the centre line, not -1.5e-08
     assert _line(out, "gauge peak strain (microstrain)").split()[-1] == "3424.92"  # not "(3424.92)"
+    # The 12 x 12 Ritz basis is the largest error on four screws (0.5 % at the centre against 24 x 24), and the
+    # note names where a command-line user sets it.
     note = _line(out, "note: not converged")
-    assert "raise --max-modes (Numerics.max_modes, 16 here" in note
-    assert main(["drop", "--scene", "jesd22-board", "--no-plots", "--json", "--max-modes", "32"]) == 0
+    assert "raise Plate.basis (now (12, 12); `basis = [nx, ny]` in the scene file's [plate]" in note
+    # A plate supported along its long sides needs more modes (its modes across the width, coupled by Poisson's
+    # ratio): the note names the option.
+    scene = tmp_path / "sfsf.toml"
+    scene.write_text('extends = "jedec"\n[plate]\nlength = 0.1\nwidth = 0.05\nthickness = 1e-3\n'
+                     'youngs_modulus = 22e9\ndensity = 1900.0\npoisson_ratio = 0.3\nedges = "SFSF"\n')
+    assert main(["drop", "--scene", str(scene), "--no-plots", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
-    # More modes leave the 12 x 12 Ritz basis as the largest error (0.6 %), and the note then names it.
-    assert report["converged"] is False and report["n_modes"] > 16
-    assert any("not converged: a Ritz basis" in note and "Plate.basis" in note for note in report["notes"])
-    assert isinstance(report["gauge_peak_strain_microstrain"], list)  # --json keeps its types
+    assert report["converged"] is False and report["n_modes"] == 16
+    assert any("raise --max-modes (Numerics.max_modes, 16 here" in note for note in report["notes"]), report["notes"]
+    assert isinstance(report["peak_stress_MPa"], float)  # --json keeps its types
 
 
 def test_flat_landing_figures_show_the_impulse_used_and_both_corners():
@@ -785,8 +791,9 @@ def test_a_plate_gauge_anywhere_from_the_command_line(tmp_path, capsys):
     report = json.loads(capsys.readouterr().out)
     assert [(g["x_mm"], g["y_mm"]) for g in report["gauges"]] == [(66.0, 0.0), (30.0, 20.0)]
     res = bd.simulate(bd.load_scene("jesd22-board"), gauges=((0.066, 0.0), (0.03, 0.02)))
+    # The same reading to the round-off of two compiled programs (the peak time's Newton steps amplify it).
     np.testing.assert_allclose([g["peak_strain_microstrain"] for g in report["gauges"]],
-                               np.asarray(res.gauges.peak_strain) * 1e6, rtol=1e-9)
+                               np.asarray(res.gauges.peak_strain) * 1e6, rtol=1e-7)
     assert main(["drop", "--gauge", "30,20", "--no-plots", "--out", str(tmp_path)]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if "compiling" not in line]
     assert len(err) == 1 and "a beam's gauge is X_MM alone" in err[0], err

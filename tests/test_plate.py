@@ -108,7 +108,12 @@ def test_poisson_ratio_raises_an_sfsf_plates_peak_at_its_free_edges():
     board, plate = _pair(0.3)
     motion = bd.HalfSine(1.0, 0.5, 5e-4)
     beam = bd.board_response(board, motion).peak
-    res = bd.board_response(plate, motion)
+    # 16 modes: the check, with every mode of the Ritz basis, finds modes across the width that Poisson's ratio
+    # couples in (0.25 %; a check with 32 modes did not), and names the fix.
+    default = bd.board_response(plate, motion)
+    assert not bool(default.converged) and float(default.convergence.modes) > 1e-3
+    assert "raise Numerics.max_modes" in bd.response_notes(bd.Scene(board=plate), default)[0]
+    res = bd.board_response(plate, motion, bd.Numerics(max_modes=32))
     assert bool(res.converged)
     # Anticlastic bending: the free sides curl, the edge's strain exceeds the beam's by about nu^2-order terms
     # plus the stiffer plate modulus E / (1 - nu^2) in the stress.
@@ -553,8 +558,9 @@ def test_a_mount_off_the_plate_has_a_flag_of_its_own():
 def test_converged_means_the_gauges_agree_with_a_converged_run():
     """`converged` covers what the user reads: the peak and every gauge, in the modes and in the Ritz basis. On the
     JESD22 board the defaults say they are not converged and name the fix; with the modes and basis the board
-    needs, the response says converged and agrees with a far richer run (basis 28 x 28, 64 modes) within the
-    tolerance at a gauge between two screws; a basis too coarse for that says so and names the basis."""
+    needs, the response says converged and agrees with a richer run (basis 36 x 36, 64 modes: estimate 9e-4)
+    within twice the tolerance at the centre and at a gauge between two screws; a basis too coarse says so and names
+    the basis."""
     scene = bd.load_scene("jesd22-board")
     plate = scene.board
     motion = bd.HalfSine.from_peak(*bd.JESD22_B111_CONDITION_B)
@@ -563,19 +569,21 @@ def test_converged_means_the_gauges_agree_with_a_converged_run():
     assert not bool(default.converged) and float(default.error_estimate) > 1e-3
     assert any("not converged" in n and ("Numerics.max_modes" in n or "Plate.basis" in n)
                for n in bd.response_notes(scene, default))
-    enough = bd.Numerics(max_modes=48, pulse_modes=3.0, frequency_growth=1)
-    fine = bd.board_response(dataclasses.replace(plate, basis=(20, 20)), motion, enough, gauges=gauges)
+    # Point supports make the basis converge slowly: the centre moves 1.5e-4 from 20 to 24 functions each way and
+    # 1.3e-4 from 24 to 28, and 20 x 20 says (truthfully) that it is not converged.
+    enough = bd.Numerics(max_modes=48, frequency_growth=1)
+    fine = bd.board_response(dataclasses.replace(plate, basis=(28, 28)), motion, enough, gauges=gauges)
     assert bool(fine.converged) and float(fine.error_estimate) <= 1e-3
     c = fine.convergence
     assert max(float(c.modes), float(c.gauges)) + float(c.basis) == pytest.approx(float(fine.error_estimate), rel=1e-12)
-    rich = bd.board_response(dataclasses.replace(plate, basis=(28, 28)), motion,
-                             bd.Numerics(n_modes=64, frequency_growth=1), gauges=gauges)
+    rich = bd.board_response(dataclasses.replace(plate, basis=(36, 36)), motion,
+                             bd.Numerics(max_modes=64, frequency_growth=1), gauges=gauges)
     np.testing.assert_allclose(np.asarray(fine.gauges.peak_strain), np.asarray(rich.gauges.peak_strain), rtol=2e-3)
     np.testing.assert_allclose(float(fine.peak.strain), float(rich.peak.strain), rtol=2e-3)
     coarse = bd.board_response(plate, motion, enough, gauges=gauges)  # the 12 x 12 default basis
     assert not bool(coarse.converged) and coarse.convergence.worst()[0] == "basis"
     notes = bd.response_notes(scene, coarse)
-    assert any("not converged: a Ritz basis" in n and "raise Plate.basis" in n for n in notes), notes
+    assert any("not converged: the Ritz basis's error" in n and "raise Plate.basis" in n for n in notes), notes
 
 
 def test_default_gradients_of_a_screwed_board_match_central_differences():

@@ -24,9 +24,11 @@ class Numerics(eqx.Module):
       `min_modes`, at most `max_modes`) and checks it against twice as many, or `max_modes` when twice as many
       exceed it (half as many only when the count is at the cap);
       an int means exactly modes 1..n_modes, checked against half as many. `max_modes` and `pulse_modes` left
-      `None` take the board's own (`AbstractBoard.NUMERICS`; 16 and 2 for the beam and the plate). A plate on
-      point mounts needs modes well past the pulse's band near its screws: on the JESD22 board 48 modes and
-      `pulse_modes=3` (with `frequency_growth=1`, which keeps its time grid small).
+      `None` take the board's own (`AbstractBoard.NUMERICS`; 16 and 2 for the beam and the plate). A plate under
+      half-sine pulses (the closed form) keeps all `max_modes` modes (on its search grid they cost what fewer
+      would) and is checked against every mode of its Ritz basis at the peak and the gauges; point mounts and
+      narrow plates need modes well past the pulse's band: on the JESD22 board 48 (with `frequency_growth=1`,
+      which keeps its time grid small).
     - `frequency_growth`: how the top computed mode's frequency grows with the mode count M, which sizes the time
       grid: 2 (the default) for M^2 (a beam; a bound for any board), 1 for about 1.5 M (a plate on mounts, by
       Weyl's law in two dimensions; the grid then allows 2 M + 8 periods, and a plate whose frequencies outgrow
@@ -37,7 +39,7 @@ class Numerics(eqx.Module):
     - `points_per_period`: time-grid points per period of the highest computed mode (N = 0 estimate);
       `x_points_per_mode`: spatial grid points per computed mode.
     - `refine`: Newton refinement of the grid's best `candidates` peaks (`newton_steps` each).
-    - `convergence_rtol`: `converged` when the mode check changes the peak stress by less than this.
+    - `convergence_rtol`: `converged` when the error estimate (`Response.convergence`) is below this.
     - `stretching`: nonlinear mid-plane stretching for axially immovable supports (diffrax only).
     - `law`: restitution law of the housing impact.
     - `max_impacts`: impacts followed (1: the first corner impact only, the thesis's model; more: the housing
