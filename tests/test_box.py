@@ -64,8 +64,8 @@ def _random_drop(rng):
         verts = _vertices(*dims) @ R.T
         r = verts[np.argmin(verts[:, 1])]
         if (v + np.cross(w, r))[1] < -0.05:
-            return dict(orientation=orientation, tilt=tilt, dims=dims, velocity=v, spin=w, r=r, R=R,
-                        friction=rng.uniform(0, 1), restitution=rng.uniform(0, 1))
+            return {"orientation": orientation, "tilt": tilt, "dims": dims, "velocity": v, "spin": w, "r": r,
+                    "R": R, "friction": rng.uniform(0, 1), "restitution": rng.uniform(0, 1)}
 
 
 def _hit(d, law="poisson", friction=None, restitution=None):
@@ -178,7 +178,7 @@ def test_symmetric_edge_landing_is_the_plane_answer(law):
 
 
 def test_energy_friction_cone_and_frames(drops):
-    worst = dict(energy=-np.inf, cone=-np.inf, frame=0.0)
+    worst = {"energy": -np.inf, "cone": -np.inf, "frame": 0.0}
     ends = []
     for d in drops:
         T0 = _kinetic_energy(MASS, d["R"] @ np.diag(_uniform_box_inertia(MASS, *d["dims"])) @ d["R"].T,
@@ -237,6 +237,10 @@ def _mount_fit(hit):
 def test_mount_jumps_are_a_rigid_field_that_varies_across_the_depth():
     tilted = bd.box_impact(MASS, WIDTH, HEIGHT, DEPTH, None, 0.5, 0.3, [0.2, -3.0, 0.0], [0.0, 0.0, 2.0], 0.3, 0.5)
     dv_n, coef, residual = _mount_fit(tilted)
+    moments = tuple(float(I) for I in bd.box_inertia(MASS, WIDTH, HEIGHT, DEPTH))
+    given_inertia = bd.box_impact(MASS, WIDTH, HEIGHT, DEPTH, moments, 0.5, 0.3, [0.2, -3.0, 0.0], [0.0, 0.0, 2.0],
+                                  0.3, 0.5)
+    np.testing.assert_allclose(given_inertia.dOmega, tilted.dOmega, rtol=1e-13)
     assert residual < 1e-12 * np.abs(dv_n).max(), residual
     across = abs(coef[2]) * 0.008  # the change between the near and far mounts
     assert across > 0.02 * np.abs(dv_n).max(), (coef, dv_n)

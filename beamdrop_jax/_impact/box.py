@@ -18,7 +18,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._common.checks import is_concrete, require
+from .._common.checks import require
 from .._common.compile import jit
 from .._common.trig import sincos
 from .impulse3d import Impact3D, impulse_3d
@@ -163,18 +163,20 @@ def rigid_vertex_impact(r, mass, inertia_world, velocity, spin, friction, restit
     """Impact of the body point at arm `r` (m, from G, ground frame) of a rigid body of `mass` (kg) and inertia
     tensor `inertia_world` (kg m^2 about G, ground frame), G moving at `velocity` (vx, vy, vz) (m/s) and spinning
     at `spin` (wx, wy, wz) (rad/s, ground frame) just before; `friction`, `restitution` and `law` as in
-    `impulse_3d`. `attitude` (optional R) is kept for `body_point_velocity_jump` (identity by default)."""
+    `impulse_3d`. `attitude` (optional R) is kept for `body_point_velocity_jump` (identity by default); `tied` is
+    False: the caller chose the point."""
     r = jnp.asarray(r)
     inverse_inertia = jnp.linalg.inv(jnp.asarray(inertia_world))
     return _vertex_impact(r, mass, inverse_inertia, velocity, spin, friction, restitution, law,
-                          jnp.eye(3, dtype=r.dtype) if attitude is None else attitude, jnp.asarray(False))
+                          jnp.eye(3, dtype=r.dtype) if attitude is None else jnp.asarray(attitude),
+                          jnp.asarray(False))
 
 
 def _vertex_impact(r, mass, inverse_inertia, velocity, spin, friction, restitution, law, attitude, tied):
     velocity, spin = jnp.asarray(velocity), jnp.asarray(spin)
-    if velocity.shape[-1:] != (3,) or spin.shape[-1:] != (3,):
+    if velocity.shape != (3,) or spin.shape != (3,):
         raise ValueError(f"velocity and spin must be 3-vectors (x, y, z) in the ground frame (m/s, rad/s); got "
-                         f"shapes {velocity.shape} and {spin.shape}")
+                         f"shapes {velocity.shape} and {spin.shape} (for many drops, jax.vmap)")
     K, u0 = _approach(r, mass, inverse_inertia, velocity, spin)
     impact = impulse_3d(K, u0, friction, restitution, law=law)
     P, dV, dOmega = _jumps(r, mass, inverse_inertia, impact.P)
@@ -204,7 +206,10 @@ def box_impact(mass, width, height, depth, inertia, orientation, tilt, velocity,
         require(value, f"box_impact {name}", lo=0.0, lo_open=True)
     if inertia is None:
         inertia = box_inertia(mass, width, height, depth)
-    elif is_concrete(inertia):
-        require(inertia, "box_impact inertia", lo=0.0, lo_open=True, unit="kg m^2")
+    inertia = jnp.asarray(inertia)
+    if inertia.shape != (3,):
+        raise ValueError(f"inertia must be the principal moments (I1, I2, I3) about e1, e2, e3, kg m^2; got shape "
+                         f"{inertia.shape}")
+    require(inertia, "box_impact inertia", lo=0.0, lo_open=True, unit="kg m^2")
     R, hit, inverse_inertia = _box_state(orientation, tilt, width, height, depth, inertia)
     return _vertex_impact(hit.r, mass, inverse_inertia, velocity, spin, friction, restitution, law, R, hit.tied)
