@@ -17,6 +17,17 @@ from ._scene.containers import (
 from ._scene.file import embedded_scenes as embedded_scenes, load_scene as load_scene, save_scene as save_scene
 from ._impact.routh import ImpactMode as ImpactMode, ImpactResult as ImpactResult, routh_impulse as routh_impulse
 from ._impact.impulse3d import Impact3D as Impact3D, impulse_3d as impulse_3d
+from ._impact.box import (
+    BoxImpact as BoxImpact,
+    LowestVertex as LowestVertex,
+    box_attitude as box_attitude,
+    box_impact as box_impact,
+    box_inertia as box_inertia,
+    box_vertices as box_vertices,
+    lowest_vertex as lowest_vertex,
+    rigid_vertex_impact as rigid_vertex_impact,
+    vertex_contact_matrix as vertex_contact_matrix,
+)
 from ._impact.kinematics import (
     HousingImpact as HousingImpact,
     approach_velocity as approach_velocity,

@@ -1,1 +1,1 @@
-"""The housing's landing: the rigid impact law (`routh.py`), the housing's kinematics (`kinematics.py`), clattering (`clatter.py`) and the supports' motion it gives the board (`motion.py`)."""
+"""The housing's landing: the rigid impact law (`routh.py`), the housing's kinematics (`kinematics.py`), the 3D single-vertex law (`impulse3d.py`) and a box housing's kinematics for it (`box.py`), clattering (`clatter.py`) and the supports' motion it gives the board (`motion.py`)."""
