@@ -349,6 +349,21 @@ class Landing(eqx.Module):
 
         return _over_times(one, t)
 
+    def contact_velocity(self, t, q) -> Float[Array, "... 2"]:
+        """The integral of `contact_acceleration` from before the touch to time(s) t: the velocity change the contact
+        forces gave housing points at body coordinates q by then, (v_G(t) - v0 + g t) + (w(t) - w0) z x r0 (m/s).
+        It is continuous in t and in the inputs where the forces jump (a corner's touch), so samples of it move
+        smoothly with the drop."""
+        q = jnp.asarray(q)
+        r0 = _rotate(q, jnp.cos(self.model.theta0), jnp.sin(self.model.theta0))
+
+        def one(t):
+            v, _, w, _, _, _ = self._rigid(t)
+            dv = v - self.v0 + jnp.stack([jnp.zeros_like(t), self.gravity * t])
+            return dv + (w - self.w0) * _cross_z(r0)
+
+        return _over_times(one, t)
+
     def contact_acceleration(self, t, q) -> Float[Array, "... 2"]:
         """Acceleration from the contact forces alone (ground frame, m/s^2) at time(s) t of housing points at body
         coordinates q = (q1, q2) from G, with the lever arms of the first touch: sum(F) / m + alpha z x r0,

@@ -103,7 +103,13 @@ def landing_motion(scene: Scene, numerics: Numerics, weight, rigid_jumps,
     landing = scene_landing(scene, window)
     t = jnp.linspace(0.0, 1.0, samples) * window
     ends = board_ends(scene.placement, scene.board.length)
-    acc = landing.contact_acceleration(t, ends)  # (samples, 2 ends, 2)
+    # Each sample is the mean contact acceleration over the interval of one sample spacing around it, from the
+    # contact velocity at the interval's ends: a corner's touch (a jump in its force) then moves the samples
+    # smoothly as the drop changes, and their gradient is that of the sampled drive (point samples of the force
+    # would jump as the touch crosses a sample, which a gradient does not see).
+    dt = window / (samples - 1)
+    edges = landing.contact_velocity(jnp.linspace(-0.5, samples - 0.5, samples + 1) * dt, ends)  # (samples + 1, 2, 2)
+    acc = (edges[1:] - edges[:-1]) / dt  # (samples, 2 ends, 2)
     # Along the board normal n = z x t (as `support_jumps`), t the board's axis in the ground frame.
     axis = _in_ground(jnp.stack(sincos(scene.placement.angle)[::-1]), *sincos(scene.drop.orientation))
     compliant = acc[..., 1] * axis[0] - acc[..., 0] * axis[1]

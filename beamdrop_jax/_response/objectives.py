@@ -15,8 +15,9 @@ from .._board.plate_checks import plate_grid_deflection, response_flags
 from .line import _membrane, _search
 from .numerics import Numerics
 from .setup import _setup
-from .simulate import _raise_eagerly, drop_motion
-from .surface import _plate_searches
+from .landing_path import compliant_weight
+from .simulate import _raise_eagerly, drop_motion, landing_drive
+from .surface import _plate_searches, plate_numerics
 
 
 QUANTITIES = ("stress", "strain", "deflection")
@@ -24,16 +25,24 @@ QUANTITIES = ("stress", "strain", "deflection")
 
 @filter_jit
 def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], grid_deflection: bool = False,
-                 motion_and_flags=None):
+                 motion_and_flags=None, landing: str = "rigid"):
     """Peaks of the requested quantities (stress, strain, deflection) sharing one modal solution and one batched
     search; returns (values (len(quantities),), flags). `grid_deflection` takes the deflection peak from the grid
     without refinement (Monte-Carlo's cheap option; it undershoots by the grid's resolution). `motion_and_flags`:
-    the drop's `(motion, impact flags)` from `drop_motion` when computed already."""
+    the drop's `(motion, impact flags)` from `drop_motion` when computed already. `landing` (static): the path of
+    `landing_drive`, or `"either"`: both, the answer picked by the compliant landing's weight."""
+    if landing == "either":
+        rigid, compliant = (_scene_peaks(scene, numerics, quantities, grid_deflection, landing=kind)
+                            for kind in ("rigid", "compliant"))
+        weight = compliant_weight(scene, numerics, drop_motion(scene, numerics)[2])
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(weight > 0, a, b), compliant, rigid)
     board = scene.board
     if motion_and_flags is None:
-        motion, _, _, impact_flags = drop_motion(scene, numerics)
+        motion, numerics, _, _, impact_flags, _ = landing_drive(scene, numerics, landing)
     else:
         motion, impact_flags = motion_and_flags
+    if board.SURFACE:
+        numerics = plate_numerics(board, numerics)
     S = _setup(board, motion, numerics, with_check=False)
     mask = (S.k <= S.used).astype(float_dtype())
     if board.SURFACE:
@@ -57,14 +66,32 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     return jnp.where(flags != 0, jnp.nan, values), flags
 
 
-def _scene_peak(scene: Scene, numerics: Numerics, quantity: str):
+def _scene_peak(scene: Scene, numerics: Numerics, quantity: str, landing: str):
     floats, rest = eqx.partition(scene, eqx.is_inexact_array)
-    return _peak_of_floats(floats, rest, numerics, quantity)
+    return _peak_of_floats(floats, rest, numerics, quantity, landing)
 
 
-def _peak_value(scene: Scene, numerics: Numerics, quantity: str):
-    values, flags = _scene_peaks(scene, numerics, (quantity,))
+def _peak_value(scene: Scene, numerics: Numerics, quantity: str, landing: str):
+    values, flags = _scene_peaks(scene, numerics, (quantity,), landing=landing)
     return values[0], flags
+
+
+@filter_jit
+def _landing_weight(scene: Scene, numerics: Numerics):
+    return compliant_weight(scene, numerics, drop_motion(scene, numerics)[2])
+
+
+def objective_landing(scene: Scene, numerics: Numerics) -> str:
+    """The landing path (`landing_drive`) of a drop's objective, as `simulate` chooses it: on `"auto"` a concrete
+    scene's own (the compliant landing where its strikes overlap: `compliant_weight` > 0), both (`"either"`) for a
+    traced one."""
+    if scene.contact.model == "rigid" or numerics.max_impacts > 1:
+        return "rigid"
+    if scene.contact.model == "compliant":
+        return "compliant"
+    if not is_concrete(scene):
+        return "either"
+    return "compliant" if float(_landing_weight(scene, numerics)) > 0 else "rigid"
 
 
 # The derivative of a peak comes from one program that computes the value and its gradient together. Under an eager
@@ -73,23 +100,27 @@ def _peak_value(scene: Scene, numerics: Numerics, quantity: str):
 # no options are allowed. The gradient is taken with respect to the fields whose tangents are not zero (symbolic
 # zeros), so an objective of a few fields differentiates only those. The rule is written in JAX, so forward mode,
 # `jit` and `vmap` work; a forward-mode derivative costs one reverse-mode gradient.
-@functools.partial(jax.custom_jvp, nondiff_argnums=(1, 2, 3))
-def _peak_of_floats(floats, rest, numerics: Numerics, quantity: str):
-    return _peak_value(eqx.combine(floats, rest), numerics, quantity)
+@functools.partial(jax.custom_jvp, nondiff_argnums=(1, 2, 3, 4))
+def _peak_of_floats(floats, rest, numerics: Numerics, quantity: str, landing: str):
+    return _peak_value(eqx.combine(floats, rest), numerics, quantity, landing)
 
 
 @filter_jit
-def _peak_and_gradient(moving, fixed, numerics: Numerics, quantity: str):
-    return jax.value_and_grad(lambda m: _peak_value(eqx.combine(m, fixed), numerics, quantity), has_aux=True)(moving)
+def _peak_and_gradient(moving, fixed, numerics: Numerics, quantity: str, landing: str):
+    return jax.value_and_grad(lambda m: _peak_value(eqx.combine(m, fixed), numerics, quantity, landing),
+                              has_aux=True)(moving)
 
 
 @functools.partial(_peak_of_floats.defjvp, symbolic_zeros=True)
-def _peak_jvp(rest, numerics, quantity, primals, tangents):
+def _peak_jvp(rest, numerics, quantity, landing, primals, tangents):
     zero = jax.custom_derivatives.SymbolicZero
     is_moving = jax.tree_util.tree_map(lambda t: not isinstance(t, zero), tangents[0],
                                        is_leaf=lambda t: isinstance(t, zero))
     moving, fixed = eqx.partition(primals[0], is_moving)
-    (value, flags), gradient = _peak_and_gradient(moving, eqx.combine(fixed, rest), numerics, quantity)
+    if landing == "either" and is_concrete(primals[0]):
+        # An eager jax.grad: the rule sees the scene's values, so it differentiates the drop's own landing path.
+        landing = objective_landing(eqx.combine(primals[0], rest), numerics)
+    (value, flags), gradient = _peak_and_gradient(moving, eqx.combine(fixed, rest), numerics, quantity, landing)
     moving_tangents = eqx.filter(tangents[0], is_moving, is_leaf=lambda t: isinstance(t, zero))
     leaves = jax.tree_util.tree_leaves
     slope = sum((jnp.vdot(g, t) for g, t in zip(leaves(gradient), leaves(moving_tangents))), jnp.zeros_like(value))
@@ -99,7 +130,7 @@ def _peak_jvp(rest, numerics, quantity, primals, tangents):
 def _peak(scene: Scene, numerics: Numerics | None, quantity: str):
     numerics = Numerics() if numerics is None else numerics
     require_single(scene, f"peak_{quantity}")
-    value, flags = _scene_peak(scene, numerics, quantity)
+    value, flags = _scene_peak(scene, numerics, quantity, objective_landing(scene, numerics))
     if is_concrete(scene, flags) and int(flags):
         clatter = int(flags) & (Flag.PIVOTING_CONTACT | Flag.SOLVER_FAILED) and numerics.max_impacts > 1
         impacts = drop_motion(scene, numerics)[1] if clatter else None

@@ -115,17 +115,25 @@ def _gauges(plate, S: _Setup, modes, mask, points) -> Gauges:
     return Gauges(gx, gy, S.t, -z * kxx, -z * kyy, -2 * z * kxy, strain, peak, t_peak)
 
 
+def plate_numerics(plate, numerics: Numerics) -> Numerics:
+    """`numerics` for `plate`: the board's own defaults, and under half-sine pulses (the closed form) all
+    `computed_modes` kept (on the search grid they cost what fewer would)."""
+    numerics = numerics.for_board(plate)
+    if numerics.method != "closed_form":
+        return numerics
+    return dataclasses.replace(numerics, n_modes=numerics.computed_modes)
+
+
 def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None) -> Response:
     if numerics.stretching:
         raise ValueError("Numerics.stretching = True models pinned beams only, not plates")
-    numerics = numerics.for_board(plate)
+    numerics = plate_numerics(plate, numerics)
     tiny = jnp.finfo(float_dtype()).tiny
     if numerics.method == "closed_form":
-        # Every mode of the Ritz basis from one eigensolve: the answer keeps the lowest computed_modes (all of them:
-        # on the search grid they cost what fewer would), the check adds the rest at the peak and the gauges.
+        # Every mode of the Ritz basis from one eigensolve: the answer keeps the lowest computed_modes, the check
+        # adds the rest at the peak and the gauges.
         full = plate.modes(plate.basis[0] * plate.basis[1])
         M = numerics.computed_modes
-        numerics = dataclasses.replace(numerics, n_modes=M)
         S = _setup(plate, motion, numerics, with_check=False, model=full.first(M))._replace(check=jnp.int32(full.n_free))
         mask = jnp.ones(M, dtype=float_dtype())
         found = _plate_searches(S, plate, numerics, S.modes, ("stress", "strain", "deflection"), mask)
