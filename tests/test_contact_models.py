@@ -109,3 +109,22 @@ def test_contact_model_is_checked_and_round_trips(tmp_path):
         bd.load_scene(tmp_path / "bad.toml")
     with pytest.raises(ValueError, match=r"max_impacts = 3 \(--max-impacts\) follows rigid strikes"):
         bd.simulate(scene, bd.Numerics(max_impacts=3))
+
+
+def test_gradients_through_the_landing_match_differences():
+    """d peak stress / d (orientation, board position) through the compliant landing, at 1 deg (the
+    landing alone) and 2.5 deg (blended with the rigid law), against the slope of a quadratic fitted to five values
+    over a small interval (the value carries solver noise of some 5e-6 of itself, too much for a two-point
+    difference with a step small enough for the answer's kinks); and `peak_stress` is `simulate`'s peak there."""
+    degree = math.radians(1.0)
+    for at in (1.0, 2.5):
+        scene = _at(bd.Scene(), at)
+        value, grad = jax.value_and_grad(bd.peak_stress)(scene)  # eager: the rule differentiates the drop's own path
+        np.testing.assert_allclose(float(value), float(bd.simulate(scene).peak.stress), rtol=1e-3)
+        for get, unit, step in ((lambda s: s.drop.orientation, 1.0, 5e-3 * degree),
+                                (lambda s: s.placement.centre, np.array([1.0, 0.0]), 1e-3)):  # along e1, m
+            offsets = np.linspace(-step, step, 5)
+            values = [float(bd.peak_stress(eqx.tree_at(get, scene, get(scene) + d * unit))) for d in offsets]
+            slope = np.polyfit(offsets, values, 2)[1]
+            derivative = float(np.sum(np.asarray(get(grad)) * unit))
+            assert abs(derivative / slope - 1) < 1e-2, (at, derivative, slope)

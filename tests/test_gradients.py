@@ -78,7 +78,9 @@ def _random_scene(rng, size):
         placement=bd.Placement(centre=np.stack([u(-0.02, 0.02), u(-0.01, 0.01)], -1), angle=u(-0.1, 0.1)),
         drop=bd.Drop(orientation=u(0.1, 2 * math.pi - 0.1), height=u(0.5, 2.0), spin=u(-30, 30),
                      horizontal_speed=u(-2, 2)),
-        contact=bd.Contact(friction=u(0.0, 1.2), restitution=u(0.1, 0.9), duration=u(2e-4, 1e-3)),
+        # The rigid law's gradients (exact to 1e-5): "rigid", as a few drops with a fast spin would have their far
+        # corner strike within the contact (test_contact_models.py tests the landing's gradients).
+        contact=bd.Contact(friction=u(0.0, 1.2), restitution=u(0.1, 0.9), duration=u(2e-4, 1e-3), model="rigid"),
     )
 
 

@@ -94,13 +94,18 @@ def solve_modes(
     y0 = jnp.concatenate([jnp.zeros(n_modes), v0])
     import diffrax
 
+    # Where the steps fall (the largest step, the kinks stepped onto, the window's end) is numerics, not physics:
+    # no derivative flows through it (diffrax's controller already stops it through the error estimate), or the
+    # gradient would hold the discretisation's change with the step sizes (d peak / d contact duration 2e8 Pa/s
+    # where the sampled landing's duration only sets the largest step).
+    dtmax, jumps, t1 = jax.lax.stop_gradient((dtmax, jumps, window))
     pid = diffrax.PIDController(rtol=rtol, atol=atol, dtmax=dtmax)
     controller = diffrax.ClipStepSizeController(pid, jump_ts=jumps)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(rhs),
         getattr(diffrax, solver)(),
         t0=0.0,
-        t1=window,
+        t1=t1,
         dt0=None,
         y0=y0,
         saveat=diffrax.SaveAt(dense=True),

@@ -81,6 +81,33 @@ def _landing_weight(scene: Scene, numerics: Numerics):
     return compliant_weight(scene, numerics, drop_motion(scene, numerics)[2])
 
 
+@filter_jit
+def _landing_weights(drops: Scene, numerics: Numerics):
+    return jax.vmap(lambda s: compliant_weight(s, numerics, drop_motion(s, numerics)[2]))(drops)
+
+
+def landing_batches(drops: Scene, numerics: Numerics) -> list[Scene]:
+    """A concrete batch of drops (every leaf batched along its first axis) split by landing path: the drops whose
+    strikes do not overlap on `Contact.model` "rigid" (the same numbers, without the landing's program), the rest
+    as they are (a traced objective takes both paths for them). Empty parts are left out; a traced batch, or one
+    not on "auto", comes back whole, and a list of batches as it is. The objectives' risks do not depend on the
+    drops' order."""
+    if isinstance(drops, list):
+        return drops
+    if drops.contact.model != "auto" or numerics.max_impacts > 1 or not is_concrete(drops):
+        return [drops]
+    weights = np.asarray(_landing_weights(drops, numerics))
+    rigid, landing = np.flatnonzero(weights == 0), np.flatnonzero(weights > 0)
+    if not landing.size:
+        return [eqx.tree_at(lambda s: s.contact, drops, drops.contact.with_model("rigid"))]
+    take = lambda idx: jax.tree_util.tree_map(lambda v: v[idx], drops)  # noqa: E731
+    parts = [take(landing)]
+    if rigid.size:
+        part = take(rigid)
+        parts.insert(0, eqx.tree_at(lambda s: s.contact, part, part.contact.with_model("rigid")))
+    return parts
+
+
 def objective_landing(scene: Scene, numerics: Numerics) -> str:
     """The landing path (`landing_drive`) of a drop's objective, as `simulate` chooses it: on `"auto"` a concrete
     scene's own (the compliant landing where its strikes overlap: `compliant_weight` > 0), both (`"either"`) for a

@@ -21,7 +21,7 @@ from .._board.plate import Plate
 from .._scene.containers import Scene, check_scene
 from .._response.numerics import Numerics
 from .._response.setup import _gauge_points
-from .._response.objectives import _scene_peaks
+from .._response.objectives import _scene_peaks, landing_batches, objective_landing
 from .._response.simulate import _simulate
 from .._common.compile import filter_jit
 from .._common.report import plain
@@ -166,15 +166,28 @@ def optimize_mounts(
     def mounts_of(z):
         return lo + span * jax.nn.sigmoid(z)
 
-    def peak(s):
+    # Each drop on its own landing path: a batch split by `landing_batches` (the drops on the rigid law alone in a
+    # program without the landing's), one drop by `objective_landing`.
+    batches = landing_batches(drops, numerics) if batched else [drops]
+
+    def landing_of(batch):
+        if not batched:
+            return objective_landing(batch, numerics)
+        return "rigid" if batch.contact.model == "rigid" or numerics.max_impacts > 1 else "either"
+
+    def peak(s, landing):
         if points is None:
-            return _scene_peaks(s, numerics, ("strain",))[0][0]
-        return jnp.max(_simulate(s, numerics, points).gauges.peak_strain)
+            return _scene_peaks(s, numerics, ("strain",), landing=landing)[0][0]
+        return jnp.max(_simulate(s, numerics, points, landing=landing).gauges.peak_strain)
+
+    kinds = [landing_of(b) for b in batches]
 
     def strain_at(m):
-        moved = eqx.tree_at(lambda s: s.board.mounts, drops, jnp.broadcast_to(m, drops.board.mounts.shape))
-        values = jax.vmap(peak)(moved) if batched else peak(moved)[None]
-        return risk(values, objective, alpha)
+        values = []
+        for batch, landing in zip(batches, kinds):
+            moved = eqx.tree_at(lambda s: s.board.mounts, batch, jnp.broadcast_to(m, batch.board.mounts.shape))
+            values.append(jax.vmap(lambda s: peak(s, landing))(moved) if batched else peak(moved, landing)[None])
+        return risk(jnp.concatenate(values), objective, alpha)
 
     def raw(z):
         return strain_at(mounts_of(z))

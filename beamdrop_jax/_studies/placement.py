@@ -30,7 +30,7 @@ from .._common.checks import float_dtype
 from .._common.checks import Flag, combine
 from .._scene.containers import Placement, Scene, board_ends, check_scene, scene_flags
 from .._response.numerics import Numerics
-from .._response.objectives import peak_stress
+from .._response.objectives import landing_batches, peak_stress
 from .._common.compile import filter_jit
 from .._common.report import plain
 from .optimum import AbstractOptimum
@@ -191,22 +191,29 @@ def _drop_grid(scene: Scene, th, hs) -> Scene:
 
 def placement_objective(scene: Scene, drops: Scene, objective="mean", alpha=0.9, numerics=None, margin=0.0,
                         region=None, max_angle=None):
-    """f(u) -> risk of the peak stresses (Pa) over `drops` with the board at `placement_from_unconstrained(u)`
+    """f(u) -> risk of the peak stresses (Pa) over `drops` (a batch of scenes, or its `landing_batches`) with the
+    board at `placement_from_unconstrained(u)`
     (`margin`, `region`, `max_angle` as there). The peak stress counts the support jumps normal to the board in
     the plane of the model: motion along the board and out of the plane are left out."""
     numerics = Numerics() if numerics is None else numerics
+    batches = landing_batches(drops, numerics)
 
     def f(u):
         placement = placement_from_unconstrained(scene, u, margin, region, max_angle)
-        placed = eqx.tree_at(
-            lambda s: (s.placement.centre, s.placement.angle),
-            drops,
-            (jnp.broadcast_to(placement.centre, drops.placement.centre.shape),
-             jnp.broadcast_to(placement.angle, drops.placement.angle.shape)),
-        )
-        return risk(jax.vmap(lambda s: peak_stress(s, numerics))(placed), objective, alpha)
+        return risk(_placed_peaks(batches, placement.centre, placement.angle, numerics), objective, alpha)
 
     return f
+
+
+def _placed_peaks(batches: list[Scene], centre, angle, numerics: Numerics):
+    """The peak stresses of the drops in `batches` (`landing_batches`) with the board at (centre, angle)."""
+    values = []
+    for drops in batches:
+        placed = eqx.tree_at(lambda s: (s.placement.centre, s.placement.angle), drops,
+                             (jnp.broadcast_to(centre, drops.placement.centre.shape),
+                              jnp.broadcast_to(angle, drops.placement.angle.shape)))
+        values.append(jax.vmap(lambda s: peak_stress(s, numerics))(placed))
+    return jnp.concatenate(values)
 
 
 class PlacementResult(AbstractOptimum):
@@ -311,13 +318,14 @@ def optimize_placement(
     # The steps between the compiled ones are small programs too: JAX run eagerly compiles one per operation.
     U, state, best_u, best_v = _start(scene, key, starts, optimizer, config)
     history, path_u = [], [U]
+    batches = landing_batches(drops, numerics)  # the objective's programs then hold each drop's own path only
     for _ in tqdm(range(steps), desc="optimize_placement", disable=not progress, leave=False):
-        U_new, state, values = _step(U, state, scene, drops, optimizer, config)
+        U_new, state, values = _step(U, state, scene, batches, optimizer, config)
         best_u, best_v = _keep_best(U, values, best_u, best_v)
         history.append(values)
         U = U_new
         path_u.append(U)
-    best_u, best_v = _keep_best(U, _values(U, scene, drops, config), best_u, best_v)
+    best_u, best_v = _keep_best(U, _values(U, scene, batches, config), best_u, best_v)
     placement, value, initial, histories, winners, path = _finish(scene, best_u, best_v, history, path_u, config)
     along_before, along_after = _along_board_jumps(drops, jnp.stack([_params(scene.placement), _params(placement)]),
                                                    numerics.law)
@@ -453,21 +461,16 @@ def placement_landscape(scene: Scene, result: PlacementResult, orientations=None
     c2 = np.linspace(lo[1], hi[1], n[1])
     C1, C2 = np.meshgrid(c1, c2, indexing="ij")
     centres = jnp.asarray(np.stack([C1.ravel(), C2.ravel()], axis=-1), float_dtype())
-    values = _landscape(centres, phi, drops, _traced_config(result.objective, alpha, numerics))
+    config = _traced_config(result.objective, alpha, numerics)
+    values = _landscape(centres, phi, landing_batches(drops, config[2]), config)
     return c1, c2, np.asarray(values).reshape(C1.shape)
 
 
 @filter_jit
-def _landscape(centres, phi, drops, config):
+def _landscape(centres, phi, batches, config):
     objective, alpha, numerics = config
 
     def one(centre):
-        placed = eqx.tree_at(
-            lambda s: (s.placement.centre, s.placement.angle),
-            drops,
-            (jnp.broadcast_to(centre, drops.placement.centre.shape),
-             jnp.broadcast_to(phi, drops.placement.angle.shape)),
-        )
-        return risk(jax.vmap(lambda s: peak_stress(s, numerics))(placed), objective, alpha)
+        return risk(_placed_peaks(batches, centre, phi, numerics), objective, alpha)
 
     return jax.lax.map(one, centres, batch_size=16)
