@@ -116,9 +116,10 @@ def objective_landing(scene: Scene, numerics: Numerics) -> str:
         return "rigid"
     if scene.contact.model == "compliant":
         return "compliant"
-    if not is_concrete(scene):
+    weight = _landing_weight(scene, numerics) if is_concrete(scene) else None
+    if weight is None or not is_concrete(weight):  # traced, or a concrete scene closed over by a user's jit
         return "either"
-    return "compliant" if float(_landing_weight(scene, numerics)) > 0 else "rigid"
+    return "compliant" if float(weight) > 0 else "rigid"
 
 
 # The derivative of a peak comes from one program that computes the value and its gradient together. Under an eager
@@ -169,8 +170,11 @@ def peak_stress(scene: Scene, numerics: Numerics | None = None) -> Float[Array, 
     """Peak bending stress (Pa) of a drop: a scalar, differentiable with respect to every float field of scene.
 
     Equals `simulate(scene, numerics).peak.stress` but computes only that peak (no deflection search, no mode
-    check), so gradients and optimisers pay for nothing else. The gradient is the exact gradient of the piece the
-    scene is on (lowest corner, Routh mode), taken at the maximiser (envelope theorem). At `Drop.height` = 0 the
+    check), so gradients and optimisers pay for nothing else; like `simulate` it follows `Contact.model` (on
+    `"auto"` the compliant landing where strikes overlap: a concrete scene takes its own path, a traced one both).
+    The gradient is the exact gradient of the piece the scene is on (lowest corner, Routh mode), taken at the
+    maximiser (envelope theorem); through the compliant landing it is that of the sampled drive (within 1 % of
+    differences in the orientation and the board's position). At `Drop.height` = 0 the
     derivative with respect to the height is infinite (the impact speed is sqrt(2 g h)); everywhere else in the
     valid domain gradients are finite. Forward mode (`jax.jvp`) gives the same derivative. Second derivatives
     (`jax.hessian`) leave out how the maximiser moves, so they are not the peak's curvature."""
