@@ -216,7 +216,7 @@ def test_record_equals_half_sine():
     t = np.linspace(0.0, tau, 2001)
     g = math.pi / (2 * tau) * np.sin(math.pi * t / tau)
     record = bd.Record(t, 3.0 * g, 1.0 * g)
-    np.testing.assert_allclose(record.velocity_jumps, [3.0, 1.0], rtol=1e-6)
+    np.testing.assert_allclose(record.velocity_jumps, [3.0, 1.0, 0.0], rtol=1e-6)
     numerics = bd.Numerics(n_modes=6, method="diffrax", rtol=1e-10, atol=1e-14, max_steps=100000)
     from_record = bd.board_response(board, record, numerics)
     closed = bd.board_response(board, bd.HalfSine(3.0, 1.0, tau), bd.Numerics(n_modes=6))
@@ -229,7 +229,7 @@ def test_record_csv(tmp_path):
     rec = bd.Record.from_csv(path, time_unit=1e-3, acceleration_unit=G)
     np.testing.assert_allclose(rec.t, [0, 2.5e-4, 5e-4])
     np.testing.assert_allclose(rec.aA[1], 1500 * G)
-    np.testing.assert_allclose(rec.velocity_jumps, [1500 * G * 2.5e-4, 1400 * G * 2.5e-4])
+    np.testing.assert_allclose(rec.velocity_jumps, [1500 * G * 2.5e-4, 1400 * G * 2.5e-4, 0.0])
 
 
 @pytest.mark.parametrize(

@@ -27,8 +27,10 @@ class AbstractModal(eqx.Module):
         """Undamped natural frequencies omega_k (rad/s) of the lowest `n_modes` modes."""
 
     @abc.abstractmethod
-    def participation(self, n_modes: int) -> Float[Array, "n 2"]:
-        """Modal forcing per unit support acceleration, columns (p_A, p_B): q_k'' + ... = p_kA a_A + p_kB a_B."""
+    def participation(self, n_modes: int) -> Float[Array, "n 3"]:
+        """Modal forcing per unit support acceleration, columns (p_A, p_B, p_R): q_k'' + ... = p_kA a_A + p_kB a_B
+        + p_kR a_R, for the three rigid-motion inputs of `bd.HalfSine` (end A, end B, roll across the width; a
+        beam's roll column is zero)."""
 
     def curvature_scale(self, n_modes: int) -> Float[Array, " n"]:
         """Per mode, the factor that turns the model's shapes into curvature shapes (ones where the model
@@ -89,14 +91,16 @@ def natural_frequencies(board: AbstractModal, n_modes: int) -> Float[Array, " n"
     return board.frequencies(n_modes)
 
 
-def support_participation(board: AbstractModal, n_modes: int) -> Float[Array, "n 2"]:
-    """Modal forcing per unit support acceleration: F_k = p_kA a_A + p_kB a_B (columns p_A, p_B)."""
+def support_participation(board: AbstractModal, n_modes: int) -> Float[Array, "n 3"]:
+    """Modal forcing per unit support acceleration: F_k = p_kA a_A + p_kB a_B + p_kR a_R (columns p_A, p_B, p_R)."""
     return board.participation(n_modes)
 
 
-def modal_velocity_jumps(board: AbstractModal, jumps: Float[Array, "2"], n_modes: int) -> Float[Array, " n"]:
-    """The modal velocities an ideal impulse with support velocity jumps (dvA, dvB) leaves, m/s."""
-    return board.participation(n_modes) @ jnp.asarray(jumps)
+def modal_velocity_jumps(board: AbstractModal, jumps: Float[Array, "3"], n_modes: int) -> Float[Array, " n"]:
+    """The modal velocities an ideal impulse with support velocity jumps (dvA, dvB, dvR) leaves, m/s ((dvA, dvB):
+    no roll)."""
+    jumps = jnp.asarray(jumps)
+    return board.participation(n_modes)[:, :jumps.shape[-1]] @ jumps
 
 
 def curvature_scale(board: AbstractModal, n_modes: int) -> Float[Array, " n"]:

@@ -267,8 +267,9 @@ class Board(AbstractBoard):
     def frequencies(self, n_modes: int) -> Float[Array, " n"]:
         return _frequencies(self, n_modes)
 
-    def participation(self, n_modes: int) -> Float[Array, "n 2"]:
-        return _participation(self, n_modes)
+    def participation(self, n_modes: int) -> Float[Array, "n 3"]:
+        p = _participation(self, n_modes)
+        return jnp.concatenate([p, jnp.zeros_like(p[:, :1])], axis=-1)  # a beam has no width: no roll
 
     def curvature_scale(self, n_modes: int) -> Float[Array, " n"]:
         return _curvature_scale(self, n_modes)

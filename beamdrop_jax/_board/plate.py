@@ -147,11 +147,11 @@ class _Basis(eqx.Module):
 def _integrals(basis: _Basis):
     """Per direction, in the M-orthonormal coordinates of that direction (Cholesky factor C, int X X = C C^T):
     (C^-1 int X'' X'' C^-T, C^-1 int X' X' C^-T, C^-1 int X'' X C^-T, C^-T, moments), float64 NumPy. The moments
-    are int X, int xi X (x) and int Y (y)."""
+    are int X, int xi X (x) and int Y, int eta Y (y, eta = y / W from the centre line)."""
     z, w = np.polynomial.legendre.leggauss(_QUADRATURE)
     z, w = (z + 1) / 2, w / 2
     out = []
-    for values, weights, moments in ((basis.x(np, z), w, (w, w * z)), (basis.y(np, z - 0.5), w, (w,))):
+    for values, weights, moments in ((basis.x(np, z), w, (w, w * z)), (basis.y(np, z - 0.5), w, (w, w * (z - 0.5)))):
         X, dX, ddX = values
         gram = lambda a, b: (a * weights[:, None]).T @ b  # noqa: E731
         C = np.linalg.cholesky(gram(X, X))
@@ -269,8 +269,17 @@ class Plate(AbstractBoard):
     def frequencies(self, n_modes: int) -> Float[Array, " n"]:
         return plate_frequencies(self, n_modes)
 
-    def participation(self, n_modes: int) -> Float[Array, "n 2"]:
+    def participation(self, n_modes: int) -> Float[Array, "n 3"]:
         return plate_participation(self, n_modes)
+
+    def rigid_motion(self, jumps: Float[Array, "3"], points=None) -> Float[Array, " m"] | None:
+        """The supports' rigid normal motion w = w_A (1 - x/L) + w_B x/L + w_R y/W at `points` (m; default the
+        mounts; None without mounts) for inputs `jumps` (A, B, R) (`bd.HalfSine`)."""
+        points = self.mounts if points is None else jnp.asarray(points)
+        if points is None:
+            return None
+        s = points[..., 0] / self.length
+        return jumps[0] * (1 - s) + jumps[1] * s + jumps[2] * points[..., 1] / self.width
 
     TABLE_DURATIONS: ClassVar[bool] = False  # a plate's superposition table holds one contact duration
 
@@ -420,11 +429,12 @@ class PlateModes(AbstractModal):
         return jnp.sqrt(jnp.maximum(self.omega2, jnp.finfo(self.omega2.dtype).tiny ** 0.25))[:n_modes]
 
 
-    def participation(self, n_modes: int | None = None) -> Float[Array, "n 2"]:
-        """Modal forcing per unit support acceleration (columns p_A, p_B), as the beam's (the lowest `n_modes`;
-        all without)."""
-        (_, _, _, _, (mx, mxi)), (_, _, _, _, (my,)) = _integrals(_basis_of(self.plate))
-        moments = jnp.asarray(np.stack([np.kron(mx - mxi, my), np.kron(mxi, my)], axis=-1), dtype=float_dtype())
+    def participation(self, n_modes: int | None = None) -> Float[Array, "n 3"]:
+        """Modal forcing per unit support acceleration (columns p_A, p_B as the beam's, and p_R for the roll
+        w = a_R y / W across the width; the lowest `n_modes`, all without)."""
+        (_, _, _, _, (mx, mxi)), (_, _, _, _, (my, myi)) = _integrals(_basis_of(self.plate))
+        moments = jnp.asarray(np.stack([np.kron(mx - mxi, my), np.kron(mxi, my), np.kron(mx, myi)], axis=-1),
+                              dtype=float_dtype())
         return (-2.0 * self.coeffs.T @ moments)[:n_modes]
 
     @property
@@ -448,8 +458,8 @@ def plate_frequencies(plate: Plate, n_modes: int) -> Float[Array, " n"]:
     return plate_modes(plate, n_modes).frequencies()
 
 
-def plate_participation(plate: Plate, n_modes: int) -> Float[Array, "n 2"]:
-    """Modal forcing per unit support acceleration (columns p_A, p_B), as the beam's."""
+def plate_participation(plate: Plate, n_modes: int) -> Float[Array, "n 3"]:
+    """Modal forcing per unit support acceleration (columns p_A, p_B, p_R; `PlateModes.participation`)."""
     return plate_modes(plate, n_modes).participation()
 
 

@@ -24,7 +24,7 @@ def init_fields(module, values: dict):
 def check_ranges(module, skip=()):
     cls = type(module)
     for name, (valid, _) in cls.RANGES.items():
-        if name not in skip:
+        if name not in skip and getattr(module, name, None) is not None:
             valid.require(getattr(module, name), f"{cls.__name__}.{name}")
 
 
@@ -33,7 +33,8 @@ def range_flags(module):
         inside = valid.contains(getattr(module, name))
         return jnp.all(inside, axis=-1) if name in VECTOR_FIELDS else inside
 
-    return combine(*(flag_if(~ok(name, valid), flag) for name, (valid, flag) in type(module).RANGES.items()))
+    return combine(*(flag_if(~ok(name, valid), flag) for name, (valid, flag) in type(module).RANGES.items()
+                     if getattr(module, name, None) is not None))
 
 
-VECTOR_FIELDS = {"centre"}  # fields with a trailing axis of their own (a pair), not a batch axis
+VECTOR_FIELDS = {"centre", "principal_inertia"}  # fields with a trailing axis of their own (a pair), not a batch axis

@@ -18,7 +18,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._common.checks import require
+from .._common.checks import Flag, combine, flag_if, require
 from .._common.compile import jit
 from .._common.trig import sincos
 from .impulse3d import Impact3D, impulse_3d
@@ -59,7 +59,9 @@ def box_vertices(width, height, depth) -> Float[Array, "8 3"]:
 class LowestVertex(eqx.Module):
     """The vertex that strikes (`lowest_vertex`).
 
-    - `index`: its row in `box_vertices`. `vertex`: its body coordinates from G, m.
+    - `index`: its row in `box_vertices`. `vertex`: its body coordinates from G, m; where two or four vertices are
+      equally low (`tied`), the midpoint of that edge or the centre of that face (the point where their equal
+      impulses act when the motion is symmetric about the level axes).
     - `r`: the arm from G to it in the ground frame, m (r[1] < 0: G's height above it is -r[1]).
     - `clearance`: how far the next-lowest vertex lies above it, m (0 on an edge or a face).
     - `tied`: whether two or more vertices are equally low (an axis within 64 eps of horizontal): an edge or face
@@ -76,13 +78,15 @@ class LowestVertex(eqx.Module):
 def _lowest(R, width, height, depth) -> LowestVertex:
     half = jnp.stack(jnp.broadcast_arrays(*(jnp.asarray(x) for x in (width, height, depth)))) / 2
     up = R[1]  # the body axes' upward components
-    # Each sign opposes its axis' upward component; a level axis takes +, as `lowest_corner_at` does.
+    # Each sign opposes its axis' upward component; a level axis takes +, as `lowest_corner_at` does, for the
+    # index, and its midpoint for the struck point.
     plus = ~(up > 0)
-    vertex = jnp.where(plus, half, -half)
-    index = jnp.sum(jnp.where(plus, jnp.array([4, 2, 1]), 0)).astype(jnp.int32)
     tol = 64 * jnp.finfo(R.dtype).eps
+    level = jnp.abs(up) < tol
+    vertex = jnp.where(level, 0.0, jnp.where(plus, half, -half))
+    index = jnp.sum(jnp.where(plus, jnp.array([4, 2, 1]), 0)).astype(jnp.int32)
     return LowestVertex(index=index, vertex=vertex, r=R @ vertex, clearance=2.0 * jnp.min(jnp.abs(up) * half),
-                        tied=jnp.any(jnp.abs(up) < tol))
+                        tied=jnp.any(level))
 
 
 def lowest_vertex(orientation, tilt, width, height, depth) -> LowestVertex:
@@ -120,8 +124,8 @@ class BoxImpact(eqx.Module):
     - `K`, `u0`: the contact's inverse inertia (1/kg) and approach velocity (m/s), contact frame.
     - `P`: the impulse in the ground frame (x, y, z), N s.
     - `dV`: jump of G's velocity (m/s); `dOmega`: jump of the angular velocity (rad/s), ground frame.
-    - `tied`: several vertices equally low (`LowestVertex.tied`): the result is then one of them striking alone,
-      outside the single-vertex law.
+    - `tied`: several vertices equally low (`LowestVertex.tied`): an edge or a face strikes, and the law acts at
+      its midpoint (exact when the motion is symmetric about the level axes; else `Flag.FLAT_LANDING_WITH_MOTION`).
     - `flags`: the impact's `Flag` mask.
     """
 
@@ -200,7 +204,10 @@ def box_impact(mass, width, height, depth, inertia, orientation, tilt, velocity,
     (rad/s, ground frame) just before; `friction`, `restitution`, `law` as in `impulse_3d`.
 
     **Returns:** a `BoxImpact`. At tilt = 0 (or any attitude with a level body axis) the box lands on an edge or a
-    face: `tied` is set and the answer is that of the vertex `lowest_vertex` picks striking alone.
+    face: `tied` is set, and the law acts at the edge's midpoint or the face's centre. By symmetry that is exact
+    when G's velocity has no component along the level axes and the spin lies along them (a level axis e3 at
+    tilt = 0 with motion in the plane: the plane section's answer); otherwise the strikes are not symmetric and
+    the result carries `Flag.FLAT_LANDING_WITH_MOTION`.
     """
     for name, value in (("mass", mass), ("width", width), ("height", height), ("depth", depth)):
         require(value, f"box_impact {name}", lo=0.0, lo_open=True)
@@ -212,4 +219,18 @@ def box_impact(mass, width, height, depth, inertia, orientation, tilt, velocity,
                          f"{inertia.shape}")
     require(inertia, "box_impact inertia", lo=0.0, lo_open=True, unit="kg m^2")
     R, hit, inverse_inertia = _box_state(orientation, tilt, width, height, depth, inertia)
-    return _vertex_impact(hit.r, mass, inverse_inertia, velocity, spin, friction, restitution, law, R, hit.tied)
+    out = _vertex_impact(hit.r, mass, inverse_inertia, velocity, spin, friction, restitution, law, R, hit.tied)
+    return eqx.tree_at(lambda b: b.flags, out, combine(out.flags, flag_if(
+        _asymmetric(R, velocity, spin), Flag.FLAT_LANDING_WITH_MOTION)))
+
+
+@jit
+def _asymmetric(R, velocity, spin):
+    """Whether the motion breaks the mirror symmetry about a level body axis (an edge or a face strikes): G's
+    velocity along it, or spin across it."""
+    velocity, spin = jnp.asarray(velocity, R.dtype), jnp.asarray(spin, R.dtype)
+    tol = 64 * jnp.finfo(R.dtype).eps
+    level = jnp.abs(R[1]) < tol
+    along = jnp.abs(velocity @ R) > tol * jnp.linalg.norm(velocity)
+    across = jnp.linalg.norm(jnp.cross(spin[None, :], R.T), axis=-1) > tol * jnp.linalg.norm(spin)
+    return jnp.any(level & (along | across))

@@ -12,6 +12,7 @@ from jaxtyping import Array, Float, Int
 
 from .._common.checks import GRAVITY, Flag, array_module, combine, flag_if, is_concrete
 from .._common.compile import filter_jit
+from .box import BoxImpact, box_impact
 from .routh import ImpactMode, ImpactResult, routh_impulse
 from .._scene.containers import Scene, board_ends
 from .._common.trig import sincos
@@ -211,3 +212,42 @@ def _support_jumps(scene: Scene, hit: HousingImpact, orientation) -> Float[Array
 
 
 _support_jumps_program = filter_jit(_support_jumps)
+
+
+def box_housing_impact(scene: Scene, law: str = "poisson") -> BoxImpact:
+    """The first impact of a box housing (`Housing.depth`): its lowest vertex (an edge's midpoint or a face's centre
+    where several are equally low) struck under the 3D rigid law (`bd.box_impact`), G falling from `Drop.height`
+    with `Drop.horizontal_speed` along x and `Drop.spin` about z."""
+    h, d, c = scene.housing, scene.drop, scene.contact
+    if not h.is_box:
+        raise ValueError("box_housing_impact needs a box housing: give Housing.depth (m)")
+    zero = jnp.zeros_like(d.spin)
+    velocity = jnp.stack([d.horizontal_speed, -jnp.sqrt(2.0 * GRAVITY * jnp.maximum(d.height, 0.0)), zero])
+    return box_impact(h.mass, h.width, h.height, h.depth, h.moments, d.orientation, d.tilt, velocity,
+                      jnp.stack([zero, zero, d.spin]), c.friction, c.restitution, law=law)
+
+
+def box_support_jumps(scene: Scene, hit: BoxImpact) -> Float[Array, "3"]:
+    """The board's rigid-motion inputs (dvA, dvB, dvR) (m/s, `bd.HalfSine`) from a box housing's impact: the
+    velocity jump dV + dOmega x r of each end A, B (on the board's centre line, at `Placement.depth_offset` along
+    e3) and across the board's width along e3, projected on the board normal (e3 x t in the body frame)."""
+    p = scene.placement
+    ends = board_ends(p, scene.board.length)  # (2, 2) body (q1, q2)
+    z = jnp.broadcast_to(p.depth_offset, ends.shape[:-1])[..., None]
+    s, c = sincos(p.angle)
+    normal = hit.attitude @ jnp.stack([-s, c, jnp.zeros_like(s)])  # ground frame
+    ends_dv = hit.body_point_velocity_jump(jnp.concatenate([ends, z], axis=-1)) @ normal
+    across = jnp.cross(hit.dOmega, hit.attitude[:, 2]) @ normal * scene.board.width
+    return jnp.concatenate([ends_dv, across[None]])
+
+
+def drop_jumps(scene: Scene, plane_jumps: Float[Array, "2"], law: str = "poisson"):
+    """The first impact's rigid-motion inputs (dvA, dvB, dvR) of the board and the box's impact (None for a
+    plane section): a plane section's or a box's at tilt = 0 are `plane_jumps` with no roll (a box on an edge
+    along e3, struck with motion in the plane, is the plane section exactly); a tilted box's come from its 3D
+    impact (`box_support_jumps`)."""
+    plane = jnp.concatenate([plane_jumps, jnp.zeros_like(plane_jumps[:1])])
+    if not scene.housing.is_box:
+        return plane, None
+    hit = box_housing_impact(scene, law)
+    return jnp.where(scene.drop.tilt == 0, plane, box_support_jumps(scene, hit)), hit

@@ -78,6 +78,8 @@ def compliant_weight(scene: Scene, numerics: Numerics, hit: HousingImpact):
     # A contact longer than the board's fundamental period loads it quasi-statically, and the sampled landing's
     # board solve would need more steps than it is given over such a window: the rigid law's closed form there.
     slow = tau > fundamental_period(scene.board)
+    if scene.housing.is_box:  # the compliant landing is the plane section's: a tilted box takes the 3D rigid law
+        slow = slow | (scene.drop.tilt != 0)
     return jnp.where((tau > 0) & ~slow, w, 0.0)
 
 
@@ -113,9 +115,10 @@ def landing_motion(scene: Scene, numerics: Numerics, weight, rigid_jumps,
     # Along the board normal n = z x t (as `support_jumps`), t the board's axis in the ground frame.
     axis = _in_ground(jnp.stack(sincos(scene.placement.angle)[::-1]), *sincos(scene.drop.orientation))
     compliant = acc[..., 1] * axis[0] - acc[..., 0] * axis[1]
-    rigid = jax.vmap(HalfSine(rigid_jumps[0], rigid_jumps[1], scene.contact.duration).acceleration)(t)
+    compliant = jnp.concatenate([compliant, jnp.zeros_like(compliant[:, :1])], axis=-1)  # the plane: no roll
+    rigid = jax.vmap(HalfSine(rigid_jumps[0], rigid_jumps[1], scene.contact.duration, rigid_jumps[2]).acceleration)(t)
     a = weight * compliant + (1.0 - weight) * rigid
-    return LandingMotion(t, a[:, 0], a[:, 1], scene.contact.duration, weight), landing
+    return LandingMotion(t, a[:, 0], a[:, 1], scene.contact.duration, weight, a[:, 2]), landing
 
 
 class LandingHistories(eqx.Module):
@@ -139,6 +142,6 @@ def landing_histories(scene: Scene, numerics: Numerics) -> LandingHistories:
     jumps = _support_jumps(scene, hit, scene.drop.orientation)
     weight = compliant_weight(scene, numerics, hit)
     motion, landing = landing_motion(scene, numerics, jnp.ones_like(weight), jumps)
-    rigid = jax.vmap(HalfSine(jumps[0], jumps[1], scene.contact.duration).acceleration)(motion.t)
+    rigid = jax.vmap(HalfSine(jumps[0], jumps[1], scene.contact.duration).acceleration)(motion.t)[:, :2]
     return LandingHistories(motion.t, landing.forces(motion.t)[..., 1], jnp.stack([motion.aA, motion.aB], -1),
                             rigid, weight)

@@ -74,7 +74,7 @@ def _respond_line(board, motion, numerics: Numerics, flags) -> Response:
         impulse=None,
         housing=None,
         impacts=None,
-        support_jumps=motion.first_jumps(),
+        support_jumps=motion.first_jumps()[:2], roll_jump=motion.first_jumps()[2],
         peak=peak,
         frequencies=natural_frequencies(board, M) / (2 * math.pi),
         n_modes=used,

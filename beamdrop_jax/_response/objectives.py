@@ -38,7 +38,7 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
         return jax.tree_util.tree_map(lambda a, b: jnp.where(weight > 0, a, b), compliant, rigid)
     board = scene.board
     if motion_and_flags is None:
-        motion, numerics, _, _, impact_flags, _ = landing_drive(scene, numerics, landing)
+        motion, numerics, _, _, impact_flags, _, _ = landing_drive(scene, numerics, landing)
     else:
         motion, impact_flags = motion_and_flags
     if board.SURFACE:

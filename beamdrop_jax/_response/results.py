@@ -4,11 +4,13 @@
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._board.base import Gauges, Peak
 from .._common.checks import Flag, is_concrete
 from .._impact.clatter import Impacts
+from .._impact.box import BoxImpact
 from .._impact.kinematics import HousingImpact
 from .._impact.routh import ImpactResult
 from .._common.report import plain, summary_text
@@ -46,7 +48,12 @@ class Response(eqx.Module):
 
     - `impulse`: the housing's first `ImpactResult` (None from `board_response`); `housing`: its `HousingImpact`.
     - `impacts`: every impact of the drop (`Impacts`; one unless `Numerics.max_impacts` > 1).
-    - `support_jumps`: (dvA, dvB) of the first impact, m/s, normal to the board.
+    - `support_jumps`: (dvA, dvB) of the first impact, m/s, normal to the board; `roll_jump`: its roll dvR across
+      the board's width (m/s; `bd.HalfSine`; 0 in a plane drop).
+    - `box`: a box housing's first impact (`bd.BoxImpact`, the 3D law at its lowest vertex; None for a plane
+      section). At tilt = 0 the board follows the plane section's impact (`impulse`), which it equals.
+    - `mount_jumps`: a plate's mounts' normal velocity jumps in the first impact (m/s, one per mount; None without
+      mounts or on a beam): the housing's rigid motion at each mount.
     - `peak`: a `Peak`.
     - `frequencies`: natural frequencies of the computed modes, Hz.
     - `n_modes`: modes in the reported peak; `check_modes`: modes of the convergence check.
@@ -75,6 +82,9 @@ class Response(eqx.Module):
     is_plate: bool = eqx.field(static=True, default=False)
     convergence: "Convergence | None" = None
     landing_weight: "Float[Array, ''] | None" = None
+    roll_jump: "Float[Array, ''] | None" = None
+    box: "BoxImpact | None" = None
+    mount_jumps: "Float[Array, ' m'] | None" = None
 
     def summary(self) -> dict:
         """The numbers of one response, units in the keys (JSON-ready with `plain`; `repr` prints them)."""
@@ -88,6 +98,10 @@ class Response(eqx.Module):
         if weight > 0:  # the rigid law's impulse is not what the board felt
             out["landing"] = ("compliant: corners strike together (Contact.model)" if weight == 1.0 else
                               f"{weight:.3g} compliant landing + {1 - weight:.3g} rigid law (strikes nearly overlap)")
+        elif r.box is not None and float(r.box.attitude[1, 2]) != 0.0:  # tilted (R[1, 2] = -sin tilt): the 3D law
+            out["impulse_Ns"] = r.box.P
+            out["struck_point_mm"] = np.asarray(r.box.attitude).T @ np.asarray(r.box.r) * 1e3
+            out["contact_mode"] = "3D, ends stuck" if bool(r.box.impact.sticks) else "3D, ends sliding"
         elif r.impulse is not None:
             flat = r.housing is not None and bool(r.housing.flat)
             out["impulse_Ns"] = r.impulse.P
@@ -96,6 +110,8 @@ class Response(eqx.Module):
             out["impacts"] = int(r.impacts.count)
         out |= {
             "support_jumps_m_per_s": r.support_jumps,
+            **({"roll_jump_m_per_s": r.roll_jump} if r.roll_jump is not None and float(r.roll_jump) else {}),
+            **({"mount_jumps_m_per_s": r.mount_jumps} if r.mount_jumps is not None else {}),
             "frequencies_Hz": r.frequencies[:4],
             "n_modes": r.n_modes,
             "check_modes": r.check_modes,

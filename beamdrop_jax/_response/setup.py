@@ -20,8 +20,9 @@ from .pulses import fundamental_period
 
 
 def support_motion(scene: Scene, jumps) -> HalfSine:
-    """The supports' motion in a drop: a half-sine of the contact's duration (an ideal impulse when it is 0)."""
-    return HalfSine(jumps[0], jumps[1], scene.contact.duration)
+    """The supports' motion in a drop: a half-sine of the contact's duration (an ideal impulse when it is 0), for
+    jumps (dvA, dvB) or (dvA, dvB, dvR)."""
+    return HalfSine(jumps[0], jumps[1], scene.contact.duration, *jumps[2:])
 
 
 def _mode_counts(board, motion, numerics: Numerics):

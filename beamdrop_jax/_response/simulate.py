@@ -11,12 +11,13 @@ import dataclasses
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._board.base import AbstractBoard
-from .._common.checks import Flag, combine, is_concrete, raise_if_flagged
+from .._common.checks import Flag, combine, flag_if, is_concrete, raise_if_flagged
 from .._common.compile import filter_jit
 from .._impact.clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
-from .._impact.kinematics import housing_impact
+from .._impact.kinematics import drop_jumps, housing_impact
 from .._impact.motion import AbstractMotion, PulseTrain
 from .._scene.containers import Scene, check_scene, require_single, scene_flags
 from .landing_path import compliant_weight, landing_motion
@@ -67,28 +68,37 @@ def board_response(board: AbstractBoard, motion, numerics: Numerics | None = Non
 def drop_motion(scene: Scene, numerics: Numerics | None = None):
     """The supports' motion in a drop: `(motion, impacts, first, flags)` with `motion` a `HalfSine` (one impact)
     or a `PulseTrain` (`Numerics.max_impacts` > 1), `impacts` the `Impacts`, `first` the first `HousingImpact`
-    and `flags` the impacts' `Flag` mask."""
-    numerics = Numerics() if numerics is None else numerics
+    and `flags` the impacts' `Flag` mask. A tilted box's first impact is its 3D one (`drop_jumps`)."""
+    return _drop_motion(scene, Numerics() if numerics is None else numerics)[:4]
+
+
+def _drop_motion(scene: Scene, numerics: Numerics):
     impacts, first = impact_sequence(scene, numerics.max_impacts, numerics.rest_speed, numerics.law)
+    jumps, box = drop_jumps(scene, impacts.support_jumps[0], numerics.law)
+    flags = impacts.flags
+    if box is not None:
+        tilted = scene.drop.tilt != 0
+        flags = combine(flags, jnp.where(tilted, box.flags, 0), flag_if(
+            tilted & ((numerics.max_impacts > 1) | (scene.contact.model == "compliant")), Flag.OUT_OF_PLANE))
     if numerics.max_impacts == 1:
-        motion = support_motion(scene, impacts.support_jumps[0])
+        motion = support_motion(scene, jumps)
     else:
-        jumps = impacts.support_jumps
-        motion = PulseTrain(impacts.t, jumps[:, 0], jumps[:, 1], scene.contact.duration)
-    return motion, impacts, first, impacts.flags
+        plane = impacts.support_jumps
+        motion = PulseTrain(impacts.t, plane[:, 0], plane[:, 1], scene.contact.duration)
+    return motion, impacts, first, flags, box
 
 
 def landing_drive(scene: Scene, numerics: Numerics, landing: str = "rigid"):
     """What the board sees in a drop, by the landing path (`landing`, static): `(motion, numerics, impacts, first,
     flags, weight)`. `"rigid"`: `drop_motion`'s; `"compliant"`: the compliant landing's supports' acceleration,
     blended with the rigid law's by `compliant_weight` (`weight`), solved with diffrax."""
-    motion, impacts, hit, flags = drop_motion(scene, numerics)
+    motion, impacts, hit, flags, box = _drop_motion(scene, numerics)
     if landing == "rigid":
-        return motion, numerics, impacts, hit, flags, jnp.zeros_like(scene.contact.duration)
+        return motion, numerics, impacts, hit, flags, jnp.zeros_like(scene.contact.duration), box
     weight = compliant_weight(scene, numerics, hit)
-    blended, path = landing_motion(scene, numerics, weight, impacts.support_jumps[0])
+    blended, path = landing_motion(scene, numerics, weight, motion.first_jumps())
     return (blended, dataclasses.replace(numerics, method="diffrax"), impacts, hit, combine(flags, path.flags),
-            weight)
+            weight, box)
 
 
 def _simulate(scene: Scene, numerics: Numerics, gauges=None, landing: str = "rigid") -> Response:
@@ -97,7 +107,7 @@ def _simulate(scene: Scene, numerics: Numerics, gauges=None, landing: str = "rig
     kinds = ("rigid", "compliant") if landing == "either" else (landing,)
     responses = []
     for kind in kinds:
-        motion, used, impacts, hit, flags, weight = landing_drive(scene, numerics, kind)
+        motion, used, impacts, hit, flags, weight, box = landing_drive(scene, numerics, kind)
         responses.append(_respond(scene.board, motion, used, combine(scene_flags(scene), flags), gauges))
     response = responses[-1]
     if landing == "either":
@@ -106,8 +116,8 @@ def _simulate(scene: Scene, numerics: Numerics, gauges=None, landing: str = "rig
         # The rigid law's answer, and whether the drop wants the landing instead (`simulate` then runs that).
         weight = compliant_weight(scene, numerics, hit)
     return eqx.tree_at(
-        lambda r: (r.impulse, r.housing, r.impacts, r.landing_weight), response, (hit.impact, hit, impacts, weight),
-        is_leaf=lambda x: x is None
+        lambda r: (r.impulse, r.housing, r.impacts, r.landing_weight, r.box), response,
+        (hit.impact, hit, impacts, weight, box), is_leaf=lambda x: x is None
     )
 
 
@@ -151,6 +161,20 @@ def _raise_eagerly(scene: Scene, numerics: Numerics, flags, impacts: Impacts | N
     raise_if_flagged(flags & ~Flag.SOLVER_FAILED, what)
 
 
+def _raise_if_out_of_plane(scene: Scene, numerics: Numerics) -> None:
+    """A tilted box asked of a model that follows the plane section only (`Flag.OUT_OF_PLANE` under jit)."""
+    if not scene.housing.is_box or not is_concrete(scene.drop.tilt) or not np.any(np.asarray(scene.drop.tilt)):
+        return
+    tilt = float(np.max(np.abs(np.asarray(scene.drop.tilt))))
+    if scene.contact.model == "compliant":
+        raise ValueError(f'Contact.model = "compliant" with Drop.tilt = {tilt:g} rad: the compliant landing follows '
+                         'the plane section only; valid: tilt = 0, or Contact.model "rigid" or "auto" (a tilted '
+                         "box then takes the 3D rigid law at its lowest vertex)")
+    if numerics.max_impacts > 1:
+        raise ValueError(f"Numerics.max_impacts = {numerics.max_impacts} with Drop.tilt = {tilt:g} rad: clattering "
+                         "follows the plane section only; valid: max_impacts = 1 for a tilted box, or tilt = 0")
+
+
 def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Response:
     """Simulate one drop: the housing's corner impact (and with `Numerics(max_impacts=K)` the clattering impacts
     after it), the board's support jumps, its vibration, and the peak bending stress, strain and deflection, where
@@ -168,6 +192,7 @@ def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Res
                          'Contact.model = "compliant" (--contact-model compliant) follows every strike in the peak '
                          'window itself; valid: max_impacts = 1 with "compliant", or model "rigid" or "auto" with '
                          "max_impacts > 1")
+    _raise_if_out_of_plane(scene, numerics)
     kind = _landing_kind(scene, numerics)
     response = _simulate_jit(scene, numerics, points, landing=kind)
     if kind == "rigid" and scene.contact.model == "auto" and numerics.max_impacts == 1:

@@ -238,7 +238,7 @@ def _build_plate(plate: Plate, duration, numerics: Numerics, n_angles: int, symm
     S = _setup(plate, HalfSine(1.0, 0.0, duration), numerics, with_check=False)
     modes = S.modes
     mask = (S.k <= S.used).astype(float_dtype())
-    unit = support_participation(modes, mask.shape[0]) * mask[:, None]
+    unit = support_participation(modes, mask.shape[0])[:, :2] * mask[:, None]  # plane drops: no roll
     _, R = S.Q
     _, _, _, shapes = _plate_points(plate, modes)
     G = jnp.stack([jnp.stack([(v * unit[:, c]) @ R.T for v in shapes]) for c in range(2)])  # (2, 4, points, nt)
@@ -343,7 +343,7 @@ def _build(board: Board, durations, numerics: Numerics, n_angles: int):
         mirrored = np.zeros(n_angles, dtype=bool)
     m = durations.shape[0]
     pseudo = jnp.asarray(searched * (2.0 / n_angles), dtype=float_dtype())
-    unit = support_participation(board, M)  # modal velocities per unit dvA and per unit dvB
+    unit = support_participation(board, M)[:, :2]  # modal velocities per unit dvA and per unit dvB (plane drops)
 
     def node(duration):
         # The time functions of the grid depend on the pulse alone: computed once per duration, shared by its

@@ -168,7 +168,8 @@ def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None) -> Res
         deflection_t=nan(deflection.t), search_error=stress.error, y=nan(stress.y), deflection_y=nan(deflection.y),
     )
     return Response(
-        impulse=None, housing=None, impacts=None, support_jumps=motion.first_jumps(), peak=peak,
+        impulse=None, housing=None, impacts=None, support_jumps=motion.first_jumps()[:2],
+        roll_jump=motion.first_jumps()[2], mount_jumps=plate.rigid_motion(motion.first_jumps()), peak=peak,
         frequencies=modes.frequencies() / (2 * math.pi), n_modes=S.used, check_modes=S.check, error_estimate=error,
         converged=(error <= numerics.convergence_rtol) & ~bad, window=S.window, flags=flags,
         gauges=None if read is None else blank_readings(read, bad), is_plate=True, convergence=convergence,

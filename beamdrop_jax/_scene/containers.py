@@ -32,25 +32,49 @@ _ANY = {unit: (Range(unit=unit), Flag.NONFINITE_INPUT) for unit in ("m", "rad/s"
 
 
 class Housing(eqx.Module):
-    """Rigid rectangular housing: `width` W and `height` H (m), `mass` (kg), `radius_of_gyration` k (m) about G.
+    """Rigid rectangular housing: `width` W and `height` H (m) in the plane of motion, `mass` (kg),
+    `radius_of_gyration` k (m) about G.
 
-    `radius_of_gyration=None` takes a uniform plate's k = sqrt((W^2 + H^2) / 12).
+    - `radius_of_gyration=None` takes a uniform plate's k = sqrt((W^2 + H^2) / 12).
+    - `depth=None` (default) keeps the plane section; a `depth` D (m, out of the plane) makes the housing a box
+      W x H x D (DESIGN.md section 7), whose principal moments about e1, e2, e3 through G are a uniform box's,
+      (m (H^2 + D^2) / 12, m (W^2 + D^2) / 12, m k^2), unless `inertia` (I1, I2, I3) (kg m^2) is given (then
+      k = sqrt(I3 / m)).
     """
 
     width: Float[Array, ""]
     height: Float[Array, ""]
     mass: Float[Array, ""]
     radius_of_gyration: Float[Array, ""]
+    depth: Float[Array, ""] | None
+    principal_inertia: Float[Array, "3"] | None
 
     RANGES: ClassVar[dict] = {
         "width": positive("m", 1e-4, 100.0),
         "height": positive("m", 1e-4, 100.0),
         "mass": positive("kg", 1e-6, 1e5),
         "radius_of_gyration": positive("m", 1e-5, 100.0),
+        "depth": positive("m", 1e-4, 100.0),
+        "principal_inertia": positive("kg m^2", 1e-16, 1e9),
     }
 
-    def __init__(self, width=0.15, height=0.075, mass=0.18, radius_of_gyration=None):
+    def __init__(self, width=0.15, height=0.075, mass=0.18, radius_of_gyration=None, depth=None, inertia=None):
         init_fields(self, dict(width=width, height=height, mass=mass))
+        self.depth = self.principal_inertia = None
+        if depth is not None:
+            init_fields(self, dict(depth=depth))
+        if inertia is not None:
+            if depth is None:
+                raise ValueError("Housing.inertia (principal moments I1, I2, I3) describes a box: give Housing.depth "
+                                 "too (m), or radius_of_gyration for the plane section")
+            if radius_of_gyration is not None:
+                raise ValueError("give Housing.inertia or Housing.radius_of_gyration, not both (k = sqrt(I3 / m))")
+            init_fields(self, dict(principal_inertia=inertia))
+            if jnp.shape(self.principal_inertia)[-1:] != (3,):
+                raise ValueError(f"Housing.inertia must be the principal moments (I1, I2, I3) about e1, e2, e3 "
+                                 f"through G, kg m^2; got shape {jnp.shape(self.principal_inertia)}")
+            i3, m = self.principal_inertia[..., 2], self.mass
+            radius_of_gyration = (np.sqrt(on_host(i3) / on_host(m)) if is_concrete(i3, m) else jnp.sqrt(i3 / m))
         if radius_of_gyration is None:
             w, h = (on_host(v) if is_concrete(v) else v for v in (self.width, self.height))
             radius_of_gyration = array_module(w, h).sqrt((w**2 + h**2) / 12.0)
@@ -58,23 +82,49 @@ class Housing(eqx.Module):
 
     def __check_init__(self):
         check_ranges(self)
+        if self.principal_inertia is not None and is_concrete(self.principal_inertia):
+            i = np.sort(np.asarray(self.principal_inertia), axis=-1)
+            if np.any(i[..., 0] + i[..., 1] < i[..., 2] * (1 - 1e-9)):
+                raise ValueError(f"Housing.inertia = {np.asarray(self.principal_inertia).tolist()} kg m^2 breaks the "
+                                 "triangle inequality of a rigid body's principal moments (each <= the sum of the "
+                                 "other two); valid: e.g. a uniform box's (leave inertia out)")
+
+    @property
+    def is_box(self) -> bool:
+        """Whether the housing is a box (`depth` given; static)."""
+        return self.depth is not None
 
     @property
     def inertia(self) -> Float[Array, ""]:
-        """Moment of inertia about G, kg m^2."""
+        """Moment of inertia about G, out of the plane (e3), kg m^2."""
+        if self.principal_inertia is not None:
+            return self.principal_inertia[..., 2]
         return self.mass * self.radius_of_gyration**2
+
+    @property
+    def moments(self) -> Float[Array, "3"]:
+        """A box's principal moments (I1, I2, I3) about e1, e2, e3 through G, kg m^2 (`Housing` says which)."""
+        if self.depth is None:
+            raise ValueError("Housing.moments needs a box: give Housing.depth (m)")
+        if self.principal_inertia is not None:
+            return self.principal_inertia
+        m, w2, h2, d2 = self.mass, self.width**2, self.height**2, self.depth**2
+        return jnp.stack([m * (h2 + d2) / 12.0, m * (w2 + d2) / 12.0, self.inertia], axis=-1)
 
 
 class Placement(eqx.Module):
-    """Where the board sits: `centre` (c1, c2) in housing axes from G (m), `angle` phi from e1 (rad)."""
+    """Where the board sits: `centre` (c1, c2) in housing axes from G (m), `angle` phi from e1 (rad), and in a box
+    housing `depth_offset` (m): its centre line's distance from G along e3 (0: centred in depth). The board's
+    width lies along e3."""
 
     centre: Float[Array, "2"]
     angle: Float[Array, ""]
+    depth_offset: Float[Array, ""]
 
-    RANGES: ClassVar[dict] = {"centre": _ANY["m"], "angle": _ANGLE}
+    RANGES: ClassVar[dict] = {"centre": _ANY["m"], "angle": _ANGLE, "depth_offset": _ANY["m"]}
 
-    def __init__(self, centre=(0.0, 0.0), angle=0.0):
-        init_fields(self, dict(centre=centre, angle=angle))
+    def __init__(self, centre=(0.0, 0.0), angle=0.0, depth_offset=0.0):
+        init_fields(self, dict(centre=centre, angle=angle, depth_offset=depth_offset))
 
     def __check_init__(self):
         if jnp.shape(self.centre)[-1:] != (2,):
@@ -84,22 +134,27 @@ class Placement(eqx.Module):
 
 class Drop(eqx.Module):
     """How the housing lands: `orientation` theta of e1 from the ground (rad), drop `height` (m),
-    `spin` (rad/s, counter-clockwise positive) and `horizontal_speed` (m/s) just before impact."""
+    `spin` (rad/s, counter-clockwise positive) and `horizontal_speed` (m/s) just before impact; `tilt` (rad) turns a
+    box housing (`Housing.depth`) about the ground's horizontal axis in the plane of motion, after `orientation`
+    (0: the plane drop; `bd.box_attitude`)."""
 
     orientation: Float[Array, ""]
     height: Float[Array, ""]
     spin: Float[Array, ""]
     horizontal_speed: Float[Array, ""]
+    tilt: Float[Array, ""]
 
     RANGES: ClassVar[dict] = {
         "orientation": _ANGLE,
         "height": (Range(0.0, unit="m"), Flag.NEGATIVE_HEIGHT),
         "spin": _ANY["rad/s"],
         "horizontal_speed": _ANY["m/s"],
+        "tilt": _ANGLE,
     }
 
-    def __init__(self, orientation=30 * DEG, height=1.5, spin=0.0, horizontal_speed=0.0):
-        init_fields(self, dict(orientation=orientation, height=height, spin=spin, horizontal_speed=horizontal_speed))
+    def __init__(self, orientation=30 * DEG, height=1.5, spin=0.0, horizontal_speed=0.0, tilt=0.0):
+        init_fields(self, dict(orientation=orientation, height=height, spin=spin, horizontal_speed=horizontal_speed,
+                               tilt=tilt))
 
     def __check_init__(self):
         check_ranges(self)
@@ -173,7 +228,12 @@ def _board_outside(scene) -> jax.Array:
     half = xp.stack(xp.broadcast_arrays(scene.housing.width, scene.housing.height), axis=-1)[..., None, :] / 2
     # A relative slack absorbs round-off for a board that spans the housing exactly.
     slack = 1e-9 * xp.max(half, axis=(-2, -1), keepdims=True)
-    return xp.any(xp.abs(ends) > half + slack, axis=(-2, -1))
+    outside = xp.any(xp.abs(ends) > half + slack, axis=(-2, -1))
+    if scene.housing.depth is not None:
+        half_depth = xp.asarray(scene.housing.depth) / 2
+        outside = outside | (xp.abs(scene.placement.depth_offset) + xp.asarray(scene.board.width) / 2
+                             > half_depth * (1 + 1e-9))
+    return outside
 
 
 class Scene(eqx.Module):
@@ -217,7 +277,8 @@ class Scene(eqx.Module):
             if check_ranges:
                 valid.require(new, path)
             section = path.split(".")[0]
-            out = eqx.tree_at(lambda s, section=section, name=name: getattr(getattr(s, section), name), out, new)
+            out = eqx.tree_at(lambda s, section=section, name=name: getattr(getattr(s, section), name), out, new,
+                              is_leaf=lambda x: x is None)
         if check_ranges and is_concrete(out):
             out.board.__check_init__()
             _check_fits(out)
@@ -251,6 +312,14 @@ def _check_fits(scene) -> None:
         return
     ends = board_ends(scene.placement, scene.board.length)
     w, h = (float(np.max(v)) for v in (scene.housing.width, scene.housing.height))
+    if scene.housing.depth is not None:
+        d, z, b = (float(np.max(np.abs(v))) for v in (scene.housing.depth, scene.placement.depth_offset,
+                                                         scene.board.width))
+        if z + b / 2 > d / 2 * (1 + 1e-9):
+            raise ValueError(
+                f"the board's width {b:g} m at Placement.depth_offset = {z:g} m reaches {z + b / 2:g} m from G "
+                f"along e3, outside the box (Housing.depth/2 = {d / 2:g} m); valid: |depth_offset| + width/2 <= "
+                "depth/2")
     raise ValueError(
         f"Placement puts the board ends at {np.round(ends.reshape(-1, 2, 2)[0], 6).tolist()} (m, housing axes from "
         f"G), outside the housing: each end must satisfy |q1| <= {w / 2:g} and |q2| <= {h / 2:g} "
@@ -276,6 +345,8 @@ def require_single(scene: Scene, what: str) -> None:
     scene (batches go through `jax.vmap` or `montecarlo`). Shapes are static, so this holds under jit too."""
     for section, cls in _section_classes(scene).items():
         for name in cls.RANGES:
+            if getattr(getattr(scene, section), name, None) is None:  # an optional field left out
+                continue
             shape = jnp.shape(getattr(getattr(scene, section), name))
             if len(shape) != (1 if name in VECTOR_FIELDS else 0):
                 raise ValueError(f"{what} takes one scene, but {section}.{name} has shape {shape}: give one value "

@@ -6,7 +6,9 @@ angles in degrees under keys ending in `_deg` (`orientation_deg`, `angle_deg`). 
 of every section, or names the embedded scene it changes with a top-level `extends = "default"` and gives only
 what differs. Keys that may always be left out, because leaving them out means something physical rather than
 borrowing a number from another device: `radius_of_gyration` (a uniform plate's), `axial_force`, `damping_ratio`,
-`spin` and `horizontal_speed` (all 0), `model` in `[contact]` (`"auto"`).
+`spin` and `horizontal_speed` (all 0), `model` in `[contact]` (`"auto"`), and the box housing's `depth` (none: the
+plane section), `principal_inertia` ([I1, I2, I3]; a uniform box's), `tilt_deg` in `[drop]` and `depth_offset` in
+`[placement]` (0).
 
 Reading is strict: a value of the wrong type (a string, a bool, a list where a number is meant), an unknown key
 (with a "did you mean"), a bare angle key (it would be read as radians), a missing key or section, a value out of
@@ -23,12 +25,17 @@ import numpy as np
 
 from .._board.beam import ENDS
 from .._common.checks import DEG, Range, as_float
+from .._common.fields import VECTOR_FIELDS
 from .._board.plate import Plate
 from .containers import CONTACT_MODELS, MAX_ANGLE, SECTIONS, Scene
 
-ANGLE_KEYS = {("placement", "angle"), ("drop", "orientation")}
+ANGLE_KEYS = {("placement", "angle"), ("drop", "orientation"), ("drop", "tilt")}
 OPTIONAL_KEYS = {
     ("housing", "radius_of_gyration"),
+    ("housing", "depth"),
+    ("housing", "principal_inertia"),
+    ("placement", "depth_offset"),
+    ("drop", "tilt"),
     ("board", "axial_force"),
     ("board", "damping_ratio"),
     ("drop", "spin"),
@@ -46,6 +53,8 @@ FILE_SECTIONS = {**SECTIONS, "plate": Plate}
 PLATE_EXTRA_KEYS = ("edges", "mounts", "basis")
 # Keys whose value is a name from a list (the others are numbers).
 CHOICE_KEYS = {("board", "ends"): ENDS, ("contact", "model"): CONTACT_MODELS}
+# File keys (field names) whose constructor argument has another name.
+KWARGS = {"principal_inertia": "inertia"}
 _DEG_RANGE = Range(-MAX_ANGLE / DEG, MAX_ANGLE / DEG, unit="deg")
 
 
@@ -139,11 +148,14 @@ def _section(section: str, table, source: str, hint: str | None = None):
         shown = f"{where} {key}"
         if name == "centre" and not (isinstance(value, list) and len(value) == 2):
             raise ValueError(f"{shown} = {value!r}: must be a pair [c1, c2] of numbers in m")
-        if name != "centre" and isinstance(value, (list, dict)):
+        if name == "principal_inertia" and not (isinstance(value, list) and len(value) == 3):
+            raise ValueError(f"{shown} = {value!r}: must be the principal moments [I1, I2, I3] about e1, e2, e3 "
+                             "through G, in kg m^2")
+        if name not in VECTOR_FIELDS and isinstance(value, (list, dict)):
             raise ValueError(f"{shown} = {value!r}: must be a single number; valid: {valid}")
         number = as_float(value, shown, valid)
         valid.require(number, shown)
-        kwargs[name] = as_float(np.asarray(number) * DEG, shown) if name != key else number
+        kwargs[KWARGS.get(name, name)] = as_float(np.asarray(number) * DEG, shown) if name != key else number
     _require_all(where, [repr(k) for k in keys
                          if k not in table and (section, k.removesuffix("_deg")) not in OPTIONAL_KEYS], "key", hint)
     return _build(where, cls, kwargs)
@@ -239,6 +251,8 @@ def scene_to_dict(scene: Scene) -> dict:
         section = getattr(module, "SECTION", section)  # a board names its own section
         fields = {}
         for name in cls.RANGES:
+            if getattr(module, name) is None or (name == "radius_of_gyration" and module.principal_inertia is not None):
+                continue  # left out: its default (or, with the moments given, k follows from them)
             value = np.asarray(jnp.asarray(getattr(module, name))).tolist()
             if (section, name) in ANGLE_KEYS:
                 fields[f"{name}_deg"] = value / DEG

@@ -32,6 +32,8 @@ def _scalar_fields(scene: Scene) -> list[tuple[str, float, str]]:
         if getattr(module, "mounts", None) is not None:
             units["mounts"] = "m"
         for name, unit in units.items():
+            if getattr(module, name) is None:  # an optional field left out (a plane housing's depth)
+                continue
             value = np.asarray(getattr(module, name))
             rows += [(f"{section}.{name}" + (f"[{', '.join(map(str, i))}]" if i else ""), float(value[i]), unit)
                      for i in np.ndindex(value.shape)]

@@ -1,0 +1,157 @@
+"""Drops of a box housing (`Housing(depth=...)`, `Drop(tilt=...)`): at tilt = 0 the plane section's answer, and the
+box's own 3D law equal to it; a tilted drop's supports (a beam's ends, a plate's mounts) moved by the housing's
+rigid motion at their points, checked against the rigid-body formula in NumPy; the plate's roll input against a
+beam across its width; gradients in the tilt against central differences; scene files and errors.
+
+Scenes share shapes: the default beam scene in a 60 mm deep box, and the embedded `phone` scene (a plate on six
+screws), so each program compiles once."""
+
+import jax
+import numpy as np
+import pytest
+
+import beamdrop_jax as bd
+from beamdrop_jax._impact.kinematics import box_support_jumps
+
+DEPTH = 0.06
+
+
+@pytest.fixture(scope="module")
+def beam_box():
+    return bd.Scene.default().replace(**{"housing.depth": DEPTH})
+
+
+@pytest.fixture(scope="module")
+def phone():
+    return bd.load_scene("phone")
+
+
+def _plane_of(scene):
+    """The same scene as a plane section (no depth)."""
+    h = scene.housing
+    d = scene.drop
+    return bd.Scene(bd.Housing(h.width, h.height, h.mass, h.radius_of_gyration), scene.board,
+                    bd.Placement(scene.placement.centre, scene.placement.angle),
+                    bd.Drop(d.orientation, d.height, d.spin, d.horizontal_speed), scene.contact)
+
+
+def _rigid_normal_jumps(hit, scene, points_body):
+    """NumPy: the normal velocity jump dV + dOmega x (R q) . (R n_body) at body points q (m, from G)."""
+    R, dV, dW = (np.asarray(v) for v in (hit.attitude, hit.dV, hit.dOmega))
+    phi = float(scene.placement.angle)
+    n = R @ np.array([-np.sin(phi), np.cos(phi), 0.0])
+    return np.array([(dV + np.cross(dW, R @ q)) @ n for q in points_body])
+
+
+def test_tilt_zero_is_the_plane_section_and_the_box_law_agrees(beam_box, phone):
+    for scene in (beam_box, phone):
+        plane = bd.simulate(_plane_of(scene).replace(**{"drop.orientation": 0.5}))
+        box = bd.simulate(scene.replace(**{"drop.orientation": 0.5, "drop.tilt": 0.0}))
+        for a, b in ((box.peak.stress, plane.peak.stress), (box.peak.strain, plane.peak.strain),
+                     (box.peak.t, plane.peak.t)):
+            np.testing.assert_allclose(float(a), float(b), rtol=1e-9)
+        # The box's own 3D law at its lowest edge's midpoint (not what the board followed) is the plane's impact.
+        scale = float(np.abs(plane.housing.dv_G).max())
+        np.testing.assert_allclose(box.box.dV[:2], plane.housing.dv_G, rtol=0, atol=1e-10 * scale)
+        np.testing.assert_allclose(box.box.dOmega[2], plane.housing.dw, rtol=1e-10)
+        assert abs(float(box.box.dV[2])) < 1e-12 and np.abs(box.box.dOmega[:2]).max() < 1e-9
+        jumps = np.asarray(box_support_jumps(scene.replace(**{"drop.orientation": 0.5}), box.box))
+        np.testing.assert_allclose(jumps[:2], plane.support_jumps, rtol=0, atol=1e-9 * scale)
+        assert abs(jumps[2]) < 1e-9 * scale and float(box.roll_jump) == 0.0
+
+
+def test_tilted_drop_moves_each_support_with_the_housing(beam_box, phone):
+    # A beam's ends at their depth.
+    scene = beam_box.replace(**{"drop.tilt": 0.3, "placement.depth_offset": 0.004, "placement.angle": 0.2,
+                                "placement.centre": (0.01, -0.005)})
+    res = bd.simulate(scene)
+    assert not bool(res.box.tied) and not int(res.flags)
+    ends = np.asarray(bd.board_ends(scene.placement, scene.board.length))
+    ref = _rigid_normal_jumps(res.box, scene, [np.append(e, 0.004) for e in ends])
+    np.testing.assert_allclose(res.support_jumps, ref, rtol=1e-12)
+    # A plate's mounts: the rigid motion at each, from its body point (x along the board, y along e3).
+    res = bd.simulate(phone)
+    mounts = np.asarray(phone.board.mounts)
+    L = float(phone.board.length)
+    q = [np.array([-L / 2 + x, 0.0, y]) for x, y in mounts]  # the plate centred on G, along e1
+    ref = _rigid_normal_jumps(res.box, phone, q)
+    np.testing.assert_allclose(res.mount_jumps, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    # Near and far screws (same x, y = -27.5 and +27.5 mm) are kicked differently by a tilted corner strike.
+    across = np.abs(ref[1::2] - ref[0::2])
+    assert across.min() > 0.3 * np.abs(ref).max(), (ref, across)
+
+
+def test_plate_roll_input_is_a_beam_across_the_width():
+    """An FSFS plate (free ends, simply supported long sides) with nu = 0 under the roll input bends as a pinned
+    beam of span W whose ends move -dvR/2 and +dvR/2 (cylindrical bending)."""
+    L, W = 0.1, 0.05
+    plate = bd.Plate(length=L, width=W, thickness=1e-3, youngs_modulus=22e9, density=1900.0, poisson_ratio=0.0,
+                     edges="FSFS", basis=(4, 24))
+    beam = bd.Board(length=W, width=L, thickness=1e-3, youngs_modulus=22e9, density=1900.0)
+    p = np.asarray(bd._board.base.support_participation(plate, 48))
+    rolling = np.abs(p[:, 2]) > 1e-9
+    f_plate = np.asarray(bd.natural_frequencies(plate, 48))[rolling][:3]
+    k = np.array([2, 4, 6])  # the beam's antisymmetric modes: 2 (-1)^k / (k pi) / 2 + 2 / (k pi) / 2
+    np.testing.assert_allclose(f_plate, np.asarray(bd.natural_frequencies(beam, 6))[k - 1], rtol=1e-6)
+    np.testing.assert_allclose(np.abs(p[rolling, 2][:3]), 2 / (k * np.pi), rtol=1e-5)
+    assert np.abs(p[~rolling, 2]).max() < 1e-9
+    rolled = bd.board_response(plate, bd.HalfSine(0.0, 0.0, 5e-4, 2.0), bd.Numerics(max_modes=48))
+    bent = bd.board_response(beam, bd.HalfSine(-1.0, 1.0, 5e-4), bd.Numerics(n_modes=32))
+    assert abs(float(rolled.peak.y)) == pytest.approx(W / 2 - float(bent.peak.x), abs=2e-4)
+    assert float(rolled.peak.stress) == pytest.approx(float(bent.peak.stress),
+                                                      rel=float(rolled.error_estimate) + 5e-4)
+
+
+def test_gradients_in_tilt_and_orientation_match_central_differences(beam_box):
+    scene = beam_box.replace(**{"drop.tilt": 0.3, "drop.orientation": 0.45})
+    numerics = bd.Numerics()
+    f = lambda s: bd.peak_stress(s, numerics)  # noqa: E731
+    grad = jax.grad(f)(scene)
+    for path, g in (("drop.tilt", grad.drop.tilt), ("drop.orientation", grad.drop.orientation)):
+        x = float(np.asarray(eval(f"scene.{path}")))  # noqa: S307 - a dotted field path
+        h = 1e-4
+        values = [float(f(scene.replace(**{path: x + k * h}))) for k in (-2, -1, 1, 2)]
+        fd = (values[0] - 8 * values[1] + 8 * values[2] - values[3]) / (12 * h)
+        assert float(g) == pytest.approx(fd, rel=1e-3, abs=1e-6 * abs(float(f(scene)))), (path, float(g), fd)
+
+
+def test_scene_files_and_errors(tmp_path, beam_box):
+    scene = beam_box.replace(**{"drop.tilt": 0.25, "placement.depth_offset": 0.003})
+    path = tmp_path / "box.toml"
+    bd.save_scene(scene, path)
+    text = path.read_text()
+    assert "depth = 0.06" in text and "tilt_deg = " in text
+    back = bd.load_scene(path)
+    assert float(back.drop.tilt) == pytest.approx(0.25, rel=1e-12)
+    assert float(back.housing.depth) == DEPTH and float(back.placement.depth_offset) == 0.003
+    given = bd.Scene(housing=bd.Housing(depth=0.06, inertia=(3e-4, 4e-4, 4.2e-4)))
+    bd.save_scene(given, path)
+    np.testing.assert_allclose(bd.load_scene(path).housing.moments, (3e-4, 4e-4, 4.2e-4))
+    bad = [
+        ('extends = "default"\n[drop]\ntilt = 0.3\n', "tilt_deg"),
+        ('extends = "default"\n[housing]\ndepth = -0.01\n', "depth"),
+        ('extends = "default"\n[housing]\nprincipal_inertia = [1e-4, 1e-4]\n', "principal_inertia"),
+        ('extends = "default"\n[housing]\ndepth = 0.02\n', "depth/2"),  # the 50 mm board does not fit
+    ]
+    for body, named in bad:
+        path.write_text(body)
+        with pytest.raises(ValueError, match=named):
+            bd.load_scene(path)
+    with pytest.raises(ValueError, match="depth"):
+        bd.Housing(inertia=(1e-4, 1e-4, 1e-4))
+    with pytest.raises(ValueError, match="triangle"):
+        bd.Housing(depth=0.06, inertia=(1e-4, 1e-4, 3e-4))
+    tilted = scene.replace(**{"drop.tilt": 0.3})
+    with pytest.raises(ValueError, match="compliant landing follows the plane"):
+        bd.simulate(eqx_contact(tilted, "compliant"))
+    with pytest.raises(ValueError, match="max_impacts"):
+        bd.simulate(tilted, bd.Numerics(max_impacts=2))
+    # Under jit the same drop is flagged, never a silent number.
+    res = jax.jit(lambda s: bd.simulate(s))(eqx_contact(tilted, "compliant"))
+    assert int(res.flags) & bd.Flag.OUT_OF_PLANE and np.isnan(float(res.peak.stress))
+
+
+def eqx_contact(scene, model):
+    import equinox as eqx
+
+    return eqx.tree_at(lambda s: s.contact, scene, scene.contact.with_model(model))
