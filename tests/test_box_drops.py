@@ -155,3 +155,22 @@ def eqx_contact(scene, model):
     import equinox as eqx
 
     return eqx.tree_at(lambda s: s.contact, scene, scene.contact.with_model(model))
+
+
+def test_campaign_on_a_box_has_every_drop_and_edges_translate(beam_box):
+    """ISTA 1A on a box: every row finite (faces 5 and 6 too). A drop from rest with G above an edge's midpoint
+    is a central impact that translates the box, so the board sees the face drop's velocity change times the
+    cosine of the tilt: edge 3-5 against face 3 (rigid law), exactly."""
+    scene = eqx_contact(beam_box, "rigid")
+    result = bd.campaign(scene, "ista-1a")
+    labels = [d.label for d in result.drops]
+    assert np.all(np.isfinite(result.stress)) and len(labels) == 10
+    face3, edge35 = labels.index("face 3"), labels.index("edge 3-5")
+    tilt = result.drops[edge35].tilt
+    assert tilt == pytest.approx(np.arctan2(DEPTH / 2, float(scene.housing.height) / 2), rel=1e-12)
+    assert result.stress[edge35] == pytest.approx(np.cos(tilt) * result.stress[face3], rel=1e-9)
+    # Faces 5 and 6 move the board along itself: no bending; the corner drop bends it.
+    for label in ("face 5", "face 6"):
+        assert abs(result.stress[labels.index(label)]) < 1e-6 * result.stress[face3]
+    assert result.stress[labels.index("corner 2-3-5")] > 0.1 * result.stress[face3]
+    assert "tilt (deg)" in result.table()

@@ -217,9 +217,12 @@ class PlateTable(eqx.Module):
         """`Flag.OUTSIDE_TABLE` where a contact `duration` (s) is not the table's."""
         return flag_if(jnp.abs(duration - self.durations[0]) > 1e-9 * self.durations[0], Flag.OUTSIDE_TABLE)
 
-    def response(self, board: Plate, jumps: Float[Array, "2"], duration, flags) -> tuple[Array, Array, Array]:
+    def response(self, board: Plate, jumps: Float[Array, "3"], duration, flags) -> tuple[Array, Array, Array]:
         """Peak stress (Pa), strain (-) and deflection (m) of the table's plate `board` for support jumps
-        (dvA, dvB) (m/s); NaN where the `Flag` mask `flags` is not 0."""
+        (dvA, dvB, dvR) (m/s); NaN where the `Flag` mask `flags` is not 0, or where the roll dvR is not (the table
+        spans plane drops: `Flag.OUTSIDE_TABLE`)."""
+        if jumps.shape[-1] > 2:
+            flags = combine(flags, flag_if(jumps[2] != 0, Flag.OUTSIDE_TABLE))
         values = self.peaks(board, jumps)
         return tuple(jnp.where(flags != 0, jnp.nan, v) for v in values)
 
@@ -270,9 +273,10 @@ def _build_plate(plate: Plate, duration, numerics: Numerics, n_angles: int, symm
 
 
 def _drop_jumps(scene: Scene, law: str):
-    """Support jumps (dvA, dvB) of a single-impact drop and its `Flag` mask (scene and impact)."""
-    _, impacts, _, flags = drop_motion(scene, Numerics(law=law))
-    return impacts.support_jumps[0], combine(scene_flags(scene), flags)
+    """Rigid-motion inputs (dvA, dvB, dvR) of a single-impact drop (a tilted box's from its 3D impact) and its
+    `Flag` mask (scene and impact)."""
+    motion, _, _, flags = drop_motion(scene, Numerics(law=law))
+    return motion.first_jumps(), combine(scene_flags(scene), flags)
 
 
 # `jax.jit` rather than `eqx.filter_jit` for these two, called once per chunk: every leaf is an array (or the

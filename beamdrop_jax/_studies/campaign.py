@@ -1,8 +1,14 @@
-"""Standard drop campaigns projected onto the plane of the model.
+"""Standard drop campaigns on a box housing, or projected onto the plane of a plane section.
 
-The model is the housing's section in one plane: width W along e1, height H along e2. Faces are numbered as in
-ISTA: 1 top (+e2), 2 right (+e1), 3 bottom (-e2), 4 left (-e1); 5 and 6 are the two faces parallel to the plane.
-A 3-D drop maps onto the plane as follows.
+Faces are numbered as in ISTA: 1 top (+e2), 2 right (+e1), 3 bottom (-e2), 4 left (-e1); 5 and 6 are the two
+faces parallel to the plane of motion (+e3 and -e3).
+
+**A box housing** (`Housing.depth`): every drop lands as the standard says, G straight above the struck point
+(a corner, an edge's midpoint, a face's centre; `standards._box_drop` gives its orientation and tilt). A corner
+strikes alone under the 3D rigid law; an edge or a face strikes as one contact at its midpoint, exact by symmetry
+for a drop from rest. Edges and faces in the plane of motion (tilt 0) take the plane section's models, as below.
+
+**A plane section** (no depth): width W along e1, height H along e2; a 3-D drop maps onto the plane as follows.
 
 - Face 1-4: a flat landing on that face (orientation pi, -pi/2, 0, pi/2): with `Contact.model` "auto" (the
   default) the compliant flat landing, both corners on springs (so a standard's tolerance of a few degrees on a
@@ -41,6 +47,8 @@ from .standards import campaign_drops
 
 UNBENT_NOTE = ("no bending in the plane model: the velocity change runs along the board (a flat landing on a face "
                "perpendicular to the board moves it along itself)")
+BOX_UNBENT_NOTE = ("no bending: the velocity change runs along the board (a drop from rest whose impulse passes "
+                   "through G and lies in the board's plane moves it along itself)")
 
 
 @dataclass
@@ -65,6 +73,11 @@ class CampaignResult:
             return []
         tol = 1e-9 * max(float(np.nanmax(np.abs(stress))), 1e-300)
         return [int(i) for i in np.flatnonzero(np.isfinite(stress) & (np.abs(stress) <= tol))]
+
+    @property
+    def unbent_note(self) -> str:
+        """Why the drops of `unbent` show 0 (a box's drops, or a plane section's)."""
+        return BOX_UNBENT_NOTE if any(d.tilt for d in self.drops) else UNBENT_NOTE
 
     @property
     def total_drops(self) -> int:
@@ -95,7 +108,7 @@ class CampaignResult:
         for i, d in enumerate(self.drops):
             note = d.note
             if i in unbent:
-                note = "; ".join(filter(None, (note, UNBENT_NOTE)))
+                note = "; ".join(filter(None, (note, self.unbent_note)))
             out.append(
                 {
                     "drop": i + 1,
@@ -103,6 +116,7 @@ class CampaignResult:
                     "attitude": d.attitude,
                     "height_m": d.height,
                     "orientation_deg": math.degrees(d.orientation),
+                    "tilt_deg": math.degrees(d.tilt),
                     "repetitions": d.repetitions,
                     "peak_stress_MPa": float(self.stress[i]) / 1e6,
                     "peak_strain_microstrain": float(self.strain[i]) * 1e6,
@@ -124,7 +138,9 @@ class CampaignResult:
         """The rows as an aligned text table (what `repr` and the CLI show); with `limit_strain` (a fraction) a
         column says which drops exceed it."""
         verdicts = {True: "OVER", False: "ok", None: "n/a"}
-        lines = [f"  {'#':>2}  {'drop':<36} {'height (m)':>10} {'angle (deg)':>11} {'reps':>4} "
+        box = any(d.tilt for d in self.drops)
+        lines = [f"  {'#':>2}  {'drop':<36} {'height (m)':>10} {'angle (deg)':>11} "
+                 + (f"{'tilt (deg)':>10} " if box else "") + f"{'reps':>4} "
                  f"{'stress (MPa)':>12} {'strain (ue)':>11} {'defl. (mm)':>10}"
                  + ("" if limit_strain is None else f" {f'> {limit_strain * 1e6:g} ue':>11}")]
         ties = len(self.worst_drops) > 1
@@ -133,7 +149,7 @@ class CampaignResult:
                     else ("  " + r["note"] if r["note"] else ""))
             verdict = "" if limit_strain is None else f" {verdicts[r['over_limit']]:>11}"
             lines.append(f"  {r['drop']:>2}  {r['label']:<36} {r['height_m']:>10.3f} {r['orientation_deg']:>11.2f} "
-                         f"{r['repetitions']:>4} {r['peak_stress_MPa']:>12.2f} {r['peak_strain_microstrain']:>11.1f} "
+                         + (f"{r['tilt_deg']:>10.2f} " if box else "") + f"{r['repetitions']:>4} {r['peak_stress_MPa']:>12.2f} {r['peak_strain_microstrain']:>11.1f} "
                          f"{r['peak_deflection_mm']:>10.3f}{verdict}{mark}")
         return "\n".join(lines)
 
@@ -144,7 +160,7 @@ class CampaignResult:
             "standard": self.standard,
             "drops": len(self.drops),
             "drops_with_repetitions": self.total_drops,
-            "drops_in_plane": int(np.sum(np.isfinite(np.asarray(self.stress, float)))),
+            "drops_modelled": int(np.sum(np.isfinite(np.asarray(self.stress, float)))),
             "drops_not_bending_the_board": len(self.unbent),
             "worst_drops": [self.drops[i].label for i in worst],
             "worst_peak_stress_MPa": float(self.stress[worst[0]]) / 1e6 if worst else None,
@@ -177,6 +193,7 @@ def campaign(scene, standard: str, numerics=None, *, mass: float | None = None, 
             "drop.height": jnp.asarray([drops[i].height for i in planar], dtype),
             "drop.spin": jnp.zeros(len(planar), dtype),
             "drop.horizontal_speed": jnp.zeros(len(planar), dtype),
+            "drop.tilt": jnp.asarray([drops[i].tilt for i in planar], dtype),
         }
     )
     axes = sample_axes(batch, scene)

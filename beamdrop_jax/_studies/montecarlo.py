@@ -41,6 +41,7 @@ _FIELDS = {
     "friction": "contact.friction",
     "restitution": "contact.restitution",
     "duration": "contact.duration",
+    "tilt": "drop.tilt",
 }
 
 
@@ -53,29 +54,34 @@ _SHOWN = {
     "friction": ("friction", "", 1.0),
     "restitution": ("restitution", "", 1.0),
     "duration": ("contact duration", " ms", 1e3),
+    "tilt": ("tilt", " deg", 180.0 / math.pi),
 }
 
 
 def _check_spec(name, spec):
     if spec is None:
         return
-    if not (isinstance(spec, tuple) and len(spec) == 3 and spec[0] in ("uniform", "lognormal")):
+    if not (isinstance(spec, tuple) and len(spec) == 3 and spec[0] in ("uniform", "lognormal", "cosine")):
         raise ValueError(
-            f"DropDistribution.{name} = {spec!r}; valid: None (the scene's value), ('uniform', low, high) or "
-            "('lognormal', median, sigma)"
+            f"DropDistribution.{name} = {spec!r}; valid: None (the scene's value), ('uniform', low, high), "
+            "('lognormal', median, sigma) or, for an angle, ('cosine', low, high)"
         )
     kind, a, b = spec
     if kind == "uniform" and not (math.isfinite(a) and math.isfinite(b) and a <= b):
         raise ValueError(f"DropDistribution.{name}: uniform bounds must be finite with low <= high, got ({a}, {b})")
+    if kind == "cosine" and not (-math.pi / 2 <= a <= b <= math.pi / 2):
+        raise ValueError(f"DropDistribution.{name}: a cosine density needs -pi/2 <= low <= high <= pi/2 rad, got "
+                         f"({a}, {b})")
     if kind == "lognormal" and not (a > 0 and b >= 0):
         raise ValueError(f"DropDistribution.{name}: lognormal needs median > 0 and sigma >= 0, got ({a}, {b})")
 
 
 class DropDistribution(eqx.Module):
     """Which scene fields vary and how: each is None (the scene's value), `("uniform", low, high)` or
-    `("lognormal", median, sigma)`. Default: orientation uniform on [0, 2 pi), everything else as in the scene.
-    Angles in rad, heights in m, spin in rad/s, speeds in m/s, durations in s. Use `DropDistribution.uniform`
-    for (low, high) shorthand."""
+    `("lognormal", median, sigma)`, or for an angle `("cosine", low, high)` (density proportional to its cosine:
+    its sine uniform). Default: orientation uniform on [0, 2 pi), everything else as in the scene. Angles in rad,
+    heights in m, spin in rad/s, speeds in m/s, durations in s. Use `DropDistribution.uniform` for (low, high)
+    shorthand, and `DropDistribution.rotations()` for a box landing in a uniformly random attitude."""
 
     orientation: tuple | None = eqx.field(static=True, default=("uniform", 0.0, 2 * math.pi))
     height: tuple | None = eqx.field(static=True, default=None)
@@ -84,6 +90,15 @@ class DropDistribution(eqx.Module):
     friction: tuple | None = eqx.field(static=True, default=None)
     restitution: tuple | None = eqx.field(static=True, default=None)
     duration: tuple | None = eqx.field(static=True, default=None)
+    tilt: tuple | None = eqx.field(static=True, default=None)
+
+    @classmethod
+    def rotations(cls, **others) -> "DropDistribution":
+        """A box housing (`Housing.depth`) landing in an attitude uniform on the rotation group: the downward
+        direction in the body, (-sin theta cos tilt, -cos theta cos tilt, sin tilt), is then uniform on the
+        sphere (orientation theta uniform on [0, 2 pi), the sine of the tilt uniform on [-1, 1]); the turn about
+        the vertical does not change a drop without horizontal speed. `others` set the other fields."""
+        return cls(orientation=("uniform", 0.0, 2 * math.pi), tilt=("cosine", -math.pi / 2, math.pi / 2), **others)
 
     def __check_init__(self):
         for name in _FIELDS:
@@ -101,6 +116,8 @@ class DropDistribution(eqx.Module):
             what, unit, scale = _SHOWN[name]
             if kind == "uniform":
                 parts.append(f"{what} uniform on [{a * scale:.4g}, {b * scale:.4g}]{unit}")
+            elif kind == "cosine":
+                parts.append(f"{what} with sine uniform, on [{a * scale:.4g}, {b * scale:.4g}]{unit}")
             else:
                 parts.append(f"{what} lognormal, median {a * scale:.4g}{unit}, sigma {b:.4g}")
         return "; ".join(parts + ["every other field as in the scene"])
@@ -116,6 +133,9 @@ class DropDistribution(eqx.Module):
             kind, a, b = spec
             if kind == "uniform":
                 values = jax.random.uniform(k, (n,), minval=a, maxval=b, dtype=float_dtype())
+            elif kind == "cosine":
+                values = jnp.arcsin(jax.random.uniform(k, (n,), minval=math.sin(a), maxval=math.sin(b),
+                                                       dtype=float_dtype()))
             else:
                 values = a * jnp.exp(b * jax.random.normal(k, (n,), dtype=float_dtype()))
             out = out.replace(check_ranges=False, **{path: values})
@@ -401,6 +421,9 @@ def montecarlo(
     if not distribution.varied():
         raise ValueError("DropDistribution varies no field: every drop would be the same (use simulate for one drop)")
     check_scene(scene)
+    if distribution.tilt is not None and not scene.housing.is_box:
+        raise ValueError("DropDistribution.tilt varies the tilt of a box housing: give Housing.depth (m), or leave "
+                         "tilt out for the plane section")
     samples = distribution.sample(scene, n, key)
     durations = None  # the table's span of contact durations, when they vary
     cannot = superposes(Numerics() if numerics is None else numerics, scene.board)
@@ -414,6 +437,10 @@ def montecarlo(
             scene, durations = scene.replace(**{"contact.duration": durations[0]}), None
         else:
             cannot = superposes(Numerics() if numerics is None else numerics, scene.board, durations)
+    if cannot is None and scene.board.SURFACE and scene.housing.is_box and (
+            distribution.tilt is not None or np.any(np.asarray(scene.drop.tilt))):
+        cannot = ("a tilted box rolls a plate's supports across its width, which a plate's table (plane drops) does "
+                  "not span")
     if superpose and cannot:
         raise ValueError(f"montecarlo(superpose=True) needs one pulse for every drop, but {cannot}")
     superpose = cannot is None if superpose is None else bool(superpose)

@@ -1,6 +1,7 @@
 """The drops the standards ask for: ISTA 1A/2A, MIL-STD-810H 516.8 IV, IEC 60068-2-31, JESD22-B111, as faces,
-edges and corners of the housing's section (see `campaign` for how they map onto the plane). Plain Python, no
-JAX: the command line lists the standards without loading the package's numerics."""
+edges and corners of a box housing (G above the struck point), or of a plane section's (see `campaign` for how
+they map onto the plane). Plain Python, no JAX: the command line lists the standards without loading the
+package's numerics."""
 
 import math
 from dataclasses import dataclass
@@ -18,8 +19,9 @@ _ISTA_HEIGHTS = {"ista-1a": (0.76, 0.61, 0.46, 0.31, 0.20), "ista-2a": (0.97, 0.
 @dataclass(frozen=True)
 class CampaignDrop:
     """One drop of a campaign: `label` (e.g. "corner 2-3-5"), `attitude` ("face", "edge", "corner", "board"),
-    `height` (m; NaN for a board-level pulse), `orientation` (rad in the plane; NaN when not in the plane),
-    `repetitions` the standard asks for, `in_plane` whether the 2-D model represents it, `note`."""
+    `height` (m; NaN for a board-level pulse), `orientation` (rad in the plane; NaN when not represented),
+    `repetitions` the standard asks for, `in_plane` whether the model represents it (a plane section: only drops
+    in its plane; a box: every drop), `note`, and a box's `tilt` (rad)."""
 
     label: str
     attitude: str
@@ -28,6 +30,7 @@ class CampaignDrop:
     repetitions: int = 1
     in_plane: bool = True
     note: str = ""
+    tilt: float = 0.0
 
 
 def _corner_orientation(faces, width, height) -> float:
@@ -52,6 +55,24 @@ def _drop(label: str, width, height, h, repetitions=1) -> CampaignDrop:
         return CampaignDrop(label, attitude, h, FACE_ORIENTATION[in_plane[0]], repetitions, True, note)
     note = "" if attitude == "edge" else f"as edge {in_plane[0]}-{in_plane[1]} (G above the corner)"
     return CampaignDrop(label, attitude, h, _corner_orientation(in_plane, width, height), repetitions, True, note)
+
+
+def _box_drop(label: str, width, height, depth, h, repetitions=1) -> CampaignDrop:
+    """A drop of a box housing named as in the standards, with G straight above the struck point: the corner
+    shared by three faces, the midpoint of the edge shared by two, the centre of one face. Faces 5 and 6 lie at
+    +D/2 and -D/2 along e3. The body's downward direction q / |q| fixes the attitude (`bd.box_attitude`):
+    sin(tilt) = q3 / |q| and orientation atan2(-q1, -q2)."""
+    attitude, spec = label.split(" ")
+    q = [0.0, 0.0, 0.0]
+    for f in (int(v) for v in spec.split("-")):
+        if f <= 4:
+            i, sign = (0, _FACE_SIGN[f][0]) if _FACE_SIGN[f][0] is not None else (1, _FACE_SIGN[f][1])
+            q[i] = sign * (width if i == 0 else height) / 2
+        else:
+            q[2] = (depth if f == 5 else -depth) / 2
+    orientation = math.atan2(-q[0], -q[1]) if (q[0] or q[1]) else 0.0
+    tilt = math.asin(q[2] / math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2))
+    return CampaignDrop(label, attitude, h, orientation, repetitions, True, "", tilt)
 
 
 def _ista(name, mass):
@@ -118,4 +139,7 @@ def campaign_drops(scene, standard: str, *, mass: float | None = None, height: f
         if not (h > 0 and math.isfinite(h)):
             raise ValueError(f"height = {height!r} m; valid: a finite height > 0 m")
         h, labels = _iec(h)
+    if scene.housing.is_box:
+        D = float(scene.housing.depth)
+        return [_box_drop(label, W, H, D, h, reps) for label, reps in labels]
     return [_drop(label, W, H, h, reps) for label, reps in labels]

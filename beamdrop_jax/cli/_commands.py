@@ -170,7 +170,7 @@ def cmd_campaign(args, output):
                    + (f"; {len(rows) - judged} not judged (n/a: not represented or not bent in the plane model)"
                       if judged < len(rows) else ""))
     if result.unbent:
-        output.note(f"{len(result.unbent)} drops show 0: {campaign_module.UNBENT_NOTE}")
+        output.note(f"{len(result.unbent)} drops show 0: {result.unbent_note}")
     output.wrote(result.to_csv(Path(args.out) / f"campaign-{args.standard}.csv"))
     if not args.no_plots:
         fig = bd.plot_campaign(result, scene=args.scene or "default", limit=limit,
