@@ -152,7 +152,6 @@ def cmd_drop(args, output):
 
 def cmd_campaign(args, output):
     import beamdrop_jax as bd
-    from .._studies import campaign as campaign_module
 
     scene = _scene(args)
     result = bd.campaign(scene, args.standard, _numerics(args), mass=args.mass, height=args.height)
