@@ -128,6 +128,7 @@ from ._bench import run_bench as run_bench, stability_study as stability_study
 from ._plots import (
     plot_deflected_board as plot_deflected_board,
     plot_bench as plot_bench,
+    plot_box as plot_box,
     plot_campaign as plot_campaign,
     plot_impact as plot_impact,
     plot_flat_landing as plot_flat_landing,

@@ -1,5 +1,6 @@
 """Every figure the package draws. Functions take results, draw on an optional `ax`, and return the figure."""
 
+from .box import plot_box as plot_box
 from .drop import (
     plot_deflected_board as plot_deflected_board,
     plot_flat_landing as plot_flat_landing,

@@ -17,6 +17,12 @@ FLAT_FACE = {0: 3, 1: 4, 2: 1, 3: 2}
 
 def _landing(scene, res) -> str:
     """'onto a corner', or 'flat onto face 3 (bottom, -e2)' when the housing lands flat (two corners at once)."""
+    import numpy as np
+
+    box = getattr(res, "box", None)
+    if box is not None and float(scene.drop.tilt) != 0:  # a tilted box: its 3D impact says what struck
+        level = int(np.sum(np.abs(np.asarray(box.attitude)[1]) < 64 * np.finfo(float).eps))
+        return ("onto a corner", "onto an edge (G above its midpoint)", "flat onto a face")[min(level, 2)]
     hit = getattr(res, "housing", res)  # a Response or a HousingImpact
     weight = getattr(res, "landing_weight", None)
     if (hit is None or not bool(hit.flat)) and weight is not None and float(weight) > 0:
@@ -33,6 +39,16 @@ def _impact_figure(bd, scene, res):
     if float(res.landing_weight) > 0:
         return bd.plot_landing(scene), "landing.png"
     return bd.plot_impacts(scene, res), "impact.png"
+
+
+def _impact_figures(bd, scene, res, output, args):
+    """A box's 3D figure (box.png), and the plane section's impact figure unless the box is tilted (its 3D impulse
+    is in box.png)."""
+    if scene.housing.is_box:
+        _save(output, bd.plot_box(scene, res), "box.png", args)
+        if float(scene.drop.tilt) != 0:
+            return
+    _save(output, *_impact_figure(bd, scene, res), args)
 
 
 def cmd_impact(args, output):
@@ -88,7 +104,8 @@ def cmd_drop(args, output):
     size_mm = 1e3 * max(float(scene.board.length), float(getattr(scene.board, "width", 0.0)))
     output.summary(_tidy_positions(res.summary(), size_mm),
                    f"Drop of {_scene_name(args)}: {float(scene.drop.height):g} m {_landing(scene, res)} at "
-                   f"{math.degrees(float(scene.drop.orientation)):.1f} deg, "
+                   f"{math.degrees(float(scene.drop.orientation)):.1f} deg"
+                   + (f", tilted {math.degrees(float(scene.drop.tilt)):.1f} deg, " if float(scene.drop.tilt) else ", ")
                    + (("compliant contact, " if float(res.landing_weight) > 0 else "half-sine contact, ")
                       + f"{tau * 1e3:g} ms per corner strike" if tau > 0 else "ideal impulse (contact duration 0)")
                    + board_text)
@@ -126,7 +143,7 @@ def cmd_drop(args, output):
             strain_map = bd.plate_strain_map(scene, res, numerics)
             _save(output, bd.plot_scene(scene, res), "scene.png", args)
             _save(output, bd.plot_plate_strain(strain_map, res, scene.board), "strain_map.png", args)
-            _save(output, *_impact_figure(bd, scene, res), args)
+            _impact_figures(bd, scene, res, output, args)
         return
     if gauge_x is not None:
         fields = bd.response_fields(scene, numerics, x=[gauge_x * 1e-3], nt=2001)
@@ -147,7 +164,7 @@ def cmd_drop(args, output):
         _save(output, bd.plot_scene(scene, res), "scene.png", args)
         _save(output, bd.plot_stress_map(fields, res), "stress_map.png", args)
         _save(output, bd.plot_deflected_board(fields, res, thickness=scene.board.thickness), "deflection.png", args)
-        _save(output, *_impact_figure(bd, scene, res), args)
+        _impact_figures(bd, scene, res, output, args)
 
 
 def cmd_campaign(args, output):
