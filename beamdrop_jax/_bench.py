@@ -265,12 +265,15 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     plates = None if tiny else plate_bench(repeats=5 if quick else 9)
     if progress and plates is not None:
         _print_plates(plates)
+    boxes = None if tiny else box_bench(repeats=3 if quick else 5)
+    if progress and boxes is not None:
+        _print_boxes(boxes)
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
 
         with atomic_open(out / "bench.json") as f:
-            f.write(json.dumps(dict(drops=n, rows=rows, stability=study, plates=plates), indent=1))
+            f.write(json.dumps(dict(drops=n, rows=rows, stability=study, plates=plates, boxes=boxes), indent=1))
     return rows
 
 
@@ -314,6 +317,39 @@ def plate_bench(repeats: int = 5, n_drops: int = 1 << 20) -> dict:
                 plate_direct_us_per_drop=direct * 1e6, plate_superposed_over_beam=plate_mc / beam_mc,
                 plate_direct_over_superposed=direct / plate_mc,
                 plate_superposed_max_error=dict(zip(("stress", "strain", "deflection"), errors)))
+
+
+def box_bench(repeats: int = 3, n_drops: int = 4096) -> dict:
+    """Box housings against plane sections, each pair timed in the same run (median wall times after compiling):
+    a whole superposed `montecarlo` of the default beam in a 60 mm deep box over attitudes uniform on the rotation
+    group (`DropDistribution.rotations()`: each drop's 3D law solved with diffrax) against the plane section over
+    uniform orientations (`n_drops` each); one tilted `simulate` of the `phone` scene (a plate on eight screws)
+    against the same plate at tilt 0 (the plane section's impact)."""
+    key = jax.random.PRNGKey(2026)
+    beam = _rigid(Scene.default())
+    box = beam.replace(**{"housing.depth": 0.06})
+    phone = _rigid(load_scene("phone"))
+
+    def mc_time(scene, distribution):
+        return _median_time(lambda: montecarlo(scene, n_drops, key, distribution, progress=False), repeats) / n_drops
+
+    def drop_time(scene):
+        return _median_time(lambda: jax.block_until_ready(simulate(scene).peak.stress), repeats)
+
+    box_mc, plane_mc = mc_time(box, DropDistribution.rotations()), mc_time(beam, DropDistribution())
+    tilted, flat = drop_time(phone), drop_time(phone.replace(**{"drop.tilt": 0.0}))
+    return dict(montecarlo_drops=n_drops, box_beam_drops_per_s=1 / box_mc, plane_beam_drops_per_s=1 / plane_mc,
+                box_over_plane=box_mc / plane_mc, phone_tilted_drop_ms=tilted * 1e3, phone_tilt0_drop_ms=flat * 1e3,
+                tilted_over_tilt0=tilted / flat)
+
+
+def _print_boxes(boxes: dict) -> None:
+    """`run_bench`'s progress line for `box_bench`."""
+    print(f"  box housing, superposed Monte-Carlo over uniform attitudes ({boxes['montecarlo_drops']} drops, beam): "
+          f"{boxes['box_beam_drops_per_s']:.3g} drops/s, against {boxes['plane_beam_drops_per_s']:.3g} drops/s for "
+          f"the plane section over uniform orientations ({boxes['box_over_plane']:.3g}x the time); phone corner drop "
+          f"{boxes['phone_tilted_drop_ms']:.3g} ms, at tilt 0 {boxes['phone_tilt0_drop_ms']:.3g} ms "
+          f"({boxes['tilted_over_tilt0']:.3g}x)", flush=True)
 
 
 @functools.partial(jit, static_argnums=(1,))
