@@ -174,3 +174,22 @@ def test_campaign_on_a_box_has_every_drop_and_edges_translate(beam_box):
         assert abs(result.stress[labels.index(label)]) < 1e-6 * result.stress[face3]
     assert result.stress[labels.index("corner 2-3-5")] > 0.1 * result.stress[face3]
     assert "tilt (deg)" in result.table()
+
+
+def test_montecarlo_over_uniform_attitudes(beam_box):
+    """`DropDistribution.rotations()`: the body's downward direction (-sin theta cos tilt, -cos theta cos tilt,
+    sin tilt) is uniform on the sphere (each component's mean 0 and mean square 1/3); the superposed peaks of a box
+    drop are its `simulate` peaks (the table's bound: at most 6.4e-5 below)."""
+    scene = eqx_contact(beam_box, "rigid")
+    res = bd.montecarlo(scene, 512, jax.random.PRNGKey(3), bd.DropDistribution.rotations(), progress=False)
+    theta, tilt = np.asarray(res.samples.drop.orientation), np.asarray(res.samples.drop.tilt)
+    down = np.stack([-np.sin(theta) * np.cos(tilt), -np.cos(theta) * np.cos(tilt), np.sin(tilt)], axis=-1)
+    assert np.abs(down.mean(axis=0)).max() < 4 / np.sqrt(3 * 512)  # 4 standard errors
+    np.testing.assert_allclose((down**2).mean(axis=0), 1 / 3, atol=4 * np.sqrt(4 / 45 / 512))
+    assert not np.any(res.flags) and np.all(np.isfinite(res.peak_stress))
+    for i in (0, 1, 2):
+        one = scene.replace(**{"drop.orientation": theta[i], "drop.tilt": tilt[i]})
+        exact = float(bd.simulate(one).peak.stress)
+        assert exact * (1 - 1e-4) <= float(res.peak_stress[i]) <= exact * (1 + 1e-9), (i, res.peak_stress[i], exact)
+    with pytest.raises(ValueError, match="depth"):
+        bd.montecarlo(bd.Scene.default(), 8, jax.random.PRNGKey(0), bd.DropDistribution.rotations(), progress=False)

@@ -194,6 +194,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--durations", type=_range("ms", 0.0, 100.0, lo_open=True), metavar="LO:HI",
                    help="contact (half-sine) durations drawn uniformly on [LO, HI] ms, or one value (default: the "
                         "scene's)")
+    p.add_argument("--tilts", type=_range("deg", -90.0, 90.0), metavar="LO:HI",
+                   help="a box housing's tilt out of the plane of motion, drawn on [LO, HI] deg with its sine uniform, "
+                        "or one value (default for a box -90:90: with --orientations 0:360, attitudes uniform on the "
+                        "rotation group)")
     p.add_argument("--seed", type=_int_at_least(0), default=0, help="random seed (default 0)")
     p.add_argument("--batch-size", type=_int_at_least(1), metavar="N", help="drops per compiled chunk")
     modes(p, "chosen from the scene")

@@ -292,15 +292,22 @@ def cmd_montecarlo(args, output):
     from .._common.report import write_csv_columns
 
     scene = _scene(args)
-    # Each range maps onto the distribution (uniform); a single value fixes the field in the scene.
+    tilts = args.tilts
+    if tilts is not None and not scene.housing.is_box:
+        raise ValueError("--tilts turns a box housing out of the plane of motion; this scene is a plane section (give "
+                         "its [housing] a depth, or leave --tilts out)")
+    if tilts is None and scene.housing.is_box:
+        tilts = (-90.0, 90.0)  # with orientations 0:360, attitudes uniform on the rotation group
+    # Each range maps onto the distribution (uniform; the tilt's sine uniform); a single value fixes the field.
     spec, fixed, fixed_text = {}, {}, []
     for name, path, given, scale, unit in (("orientation", "drop.orientation", args.orientations, math.pi / 180, "deg"),
                                            ("height", "drop.height", args.heights, 1.0, "m"),
-                                           ("duration", "contact.duration", args.durations, 1e-3, "ms")):
+                                           ("duration", "contact.duration", args.durations, 1e-3, "ms"),
+                                           ("tilt", "drop.tilt", tilts, math.pi / 180, "deg")):
         if given is None:
             spec[name] = None
         elif given[0] < given[1]:
-            spec[name] = ("uniform", given[0] * scale, given[1] * scale)
+            spec[name] = ("cosine" if name == "tilt" else "uniform", given[0] * scale, given[1] * scale)
         else:
             spec[name], fixed[path] = None, given[0] * scale
             fixed_text.append(f"{'contact ' * (name == 'duration')}{name} fixed at {given[0]:g} {unit}")
@@ -330,6 +337,8 @@ def cmd_montecarlo(args, output):
     masks, which = np.unique(np.asarray(res.flags), return_inverse=True)
     names = np.array(["|".join(bd.Flag.describe(m)) for m in masks.tolist()], dtype=object)
     columns = {"orientation_deg": orientation * (180.0 / math.pi)}
+    if spec["tilt"]:
+        columns["tilt_deg"] = f64(res.samples.drop.tilt) * (180.0 / math.pi)
     if spec["height"]:
         columns["height_m"] = f64(res.samples.drop.height)
     if spec["duration"]:
