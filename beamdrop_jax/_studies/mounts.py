@@ -116,6 +116,7 @@ def optimize_mounts(
     gauges=None,
     orientations=None,
     heights=None,
+    tilts=None,
     objective: str = "mean",
     alpha: float = 0.9,
     numerics: Numerics | None = None,
@@ -132,8 +133,9 @@ def optimize_mounts(
       default anywhere on the plate. `min_spacing`: least distance between mounts (m; a penalty).
     - `gauges`: points ((x, y), ...) (m); the objective is then their largest peak reading, else the peak over the
       plate (outside the mount discs).
-    - `orientations`, `heights`: the drops (default the scene's own drop); `objective`: `"mean"`, `"max"` or
-      `"cvar"` (level `alpha`) over them.
+    - `orientations`, `heights`: the drops (default the scene's own drop), every orientation (rad) at every height
+      (m); `tilts` (rad, a box housing's: one per orientation) makes each orientation an attitude in 3D;
+      `objective`: `"mean"`, `"max"` or `"cvar"` (level `alpha`) over them.
     - `numerics` (default `Numerics(n_modes=8)`), `steps` and `learning_rate` of optax's Adam on the unconstrained
       variables, from the scene's mounts and `starts - 1` random positions in the boxes (`key`), optimised together
       (the strain is not convex in the mount positions: a screw next to the gauge can be a local optimum).
@@ -155,8 +157,10 @@ def optimize_mounts(
     _check_spacing(box, float(min_spacing))
     box = jnp.asarray(box, dtype=float_dtype())
     lo, span = box[:, 0], box[:, 1] - box[:, 0]
+    if tilts is not None and orientations is None:
+        raise ValueError("tilts pair with orientations (one attitude each): give orientations too (rad)")
     drops = scene if orientations is None and heights is None else drop_set(
-        scene, scene.drop.orientation if orientations is None else orientations, heights)
+        scene, scene.drop.orientation if orientations is None else orientations, heights, tilts)
     batched = orientations is not None or heights is not None
     n_drops = int(drops.drop.orientation.shape[0]) if batched else 1
     # A start on a box's edge would sit where the sigmoid is flat (and never move): a hundredth inside it.

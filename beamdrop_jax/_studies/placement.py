@@ -174,19 +174,31 @@ def _traced_config(objective: str, alpha, numerics, margin=None, region=None, ma
                      jnp.asarray(max_angle, dtype))
 
 
-def drop_set(scene: Scene, orientations, heights=None) -> Scene:
-    """A batch of scenes: every orientation (rad) with every height (m; default the scene's)."""
+def drop_set(scene: Scene, orientations, heights=None, tilts=None) -> Scene:
+    """A batch of scenes: every orientation (rad) with every height (m; default the scene's). `tilts` (rad, a box
+    housing's; one per orientation) pairs with `orientations` into attitudes."""
     th = jnp.asarray(orientations, dtype=float_dtype()).reshape(-1)
     hs = jnp.asarray(scene.drop.height if heights is None else heights, dtype=float_dtype()).reshape(-1)
-    return _drop_grid(scene, th, hs)
+    if tilts is None:
+        ti = jnp.broadcast_to(jnp.asarray(scene.drop.tilt, dtype=float_dtype()), th.shape)
+    else:
+        if not scene.housing.is_box:
+            raise ValueError("tilts turn a box housing out of the plane of motion: give Housing.depth (m)")
+        ti = jnp.asarray(tilts, dtype=float_dtype()).reshape(-1)
+        if ti.shape != th.shape:
+            raise ValueError(f"tilts pair with orientations (one attitude each): got {ti.shape[0]} tilts for "
+                             f"{th.shape[0]} orientations")
+    return _drop_grid(scene, th, hs, ti)
 
 
 @filter_jit  # one program, not one per operation and field
-def _drop_grid(scene: Scene, th, hs) -> Scene:
+def _drop_grid(scene: Scene, th, hs, ti) -> Scene:
     TH, HS = jnp.meshgrid(th, hs, indexing="ij")
+    TI = jnp.broadcast_to(ti[:, None], TH.shape)
     n = TH.size
     batch = jax.tree_util.tree_map(lambda v: jnp.broadcast_to(v, (n,) + jnp.shape(v)), scene)
-    return batch.replace(**{"drop.orientation": TH.reshape(-1), "drop.height": HS.reshape(-1)})
+    return batch.replace(**{"drop.orientation": TH.reshape(-1), "drop.height": HS.reshape(-1),
+                            "drop.tilt": TI.reshape(-1)})
 
 
 def placement_objective(scene: Scene, drops: Scene, objective="mean", alpha=0.9, numerics=None, margin=0.0,
