@@ -262,12 +262,7 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     for i, r in enumerate(rows):
         r["pareto"] = i in front
     study = stability_study(level, progress=progress)
-    plates = None if tiny else plate_bench(repeats=5 if quick else 9)
-    if progress and plates is not None:
-        _print_plates(plates)
-    boxes = None if tiny else box_bench(repeats=3 if quick else 5)
-    if progress and boxes is not None:
-        _print_boxes(boxes)
+    plates, boxes = (None, None) if tiny else _board_benches(quick, progress)
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
@@ -341,6 +336,17 @@ def box_bench(repeats: int = 3, n_drops: int = 4096) -> dict:
     return dict(montecarlo_drops=n_drops, box_beam_drops_per_s=1 / box_mc, plane_beam_drops_per_s=1 / plane_mc,
                 box_over_plane=box_mc / plane_mc, phone_tilted_drop_ms=tilted * 1e3, phone_tilt0_drop_ms=flat * 1e3,
                 tilted_over_tilt0=tilted / flat)
+
+
+def _board_benches(quick: bool, progress: bool) -> tuple[dict, dict]:
+    """`plate_bench` and `box_bench`, each printed as it finishes with `progress`."""
+    plates = plate_bench(repeats=5 if quick else 9)
+    if progress:
+        _print_plates(plates)
+    boxes = box_bench(repeats=3 if quick else 5)
+    if progress:
+        _print_boxes(boxes)
+    return plates, boxes
 
 
 def _print_boxes(boxes: dict) -> None:
