@@ -57,8 +57,8 @@ def plot_box(scene, response=None, *, ax=None):
         body = np.array([np.append(ends[0] + x * axis, z0 + y) for x, y in np.asarray(mounts, float)])
         pts = to_plot(np.array([world(q) for q in body]))
         jumps = None if response is None or response.mount_jumps is None else np.asarray(response.mount_jumps)
-        art = ax.scatter(*pts.T, s=40, c=jumps if jumps is not None else "k", cmap="coolwarm", depthshade=False,
-                         edgecolors="k", label="screws", zorder=5)
+        colours = dict(c="k") if jumps is None else dict(c=jumps, cmap="coolwarm")
+        art = ax.scatter(*pts.T, s=40, depthshade=False, edgecolors="k", label="screws", zorder=5, **colours)
         if jumps is not None:
             fig.colorbar(art, ax=ax, shrink=0.6, pad=0.08, label="screw's normal velocity jump (m/s)")
     struck = None

@@ -19,7 +19,7 @@ def _landing(scene, res) -> str:
     """'onto a corner', or 'flat onto face 3 (bottom, -e2)' when the housing lands flat (two corners at once)."""
     import numpy as np
 
-    box = getattr(res, "box", None)
+    box = res if hasattr(res, "attitude") else getattr(res, "box", None)  # a BoxImpact, or a Response's
     if box is not None and float(scene.drop.tilt) != 0:  # a tilted box: its 3D impact says what struck
         level = int(np.sum(np.abs(np.asarray(box.attitude)[1]) < 64 * np.finfo(float).eps))
         return ("onto a corner", "onto an edge (G above its midpoint)", "flat onto a face")[min(level, 2)]
@@ -57,6 +57,8 @@ def cmd_impact(args, output):
     import beamdrop_jax as bd
 
     scene = _scene(args)
+    if scene.housing.is_box and float(scene.drop.tilt) != 0:
+        return _box_impact(bd, scene, args, output)
     hit = bd.housing_impact(scene, law=args.law)
     summary = {
         "striking_corner_from_G_mm": np.asarray(hit.corner) * 1e3,
@@ -72,6 +74,29 @@ def cmd_impact(args, output):
                             "tangential, C normal)")
     if not args.no_plots:
         _save(output, bd.plot_housing_impact(scene, hit, law=args.law), "impact.png", args)
+
+
+def _box_impact(bd, scene, args, output):
+    """`beamdrop impact` for a tilted box: the 3D law at its lowest vertex (contact frame (x, z, y): t1, t2, n)."""
+    import numpy as np
+
+    from .._impact.kinematics import box_housing_impact, box_support_jumps
+
+    if args.law not in ("poisson", "stronge"):
+        raise ValueError(f"--law {args.law}: a tilted box's 3D law takes poisson or stronge restitution")
+    hit = box_housing_impact(scene, law=args.law)
+    summary = {
+        "struck_point_from_G_mm": np.asarray(hit.attitude).T @ np.asarray(hit.r) * 1e3,
+        "approach_velocity_m_per_s": hit.u0,
+        **hit.impact.summary(),
+        "centre_of_mass_velocity_jump_m_per_s": hit.dV,
+        "spin_jump_rad_per_s": hit.dOmega,
+        "board_jumps_A_B_roll_m_per_s": box_support_jumps(scene, hit),
+    }
+    output.summary(summary, f"Impact of {_scene_name(args)} {_landing(scene, hit)} ({args.law} restitution; "
+                            "contact frame (x, z, y): two tangential, then normal; jumps in the ground frame)")
+    if not args.no_plots:
+        _save(output, bd.plot_box(scene), "box.png", args)
 
 
 def cmd_drop(args, output):
