@@ -220,3 +220,19 @@ def eqx_tree_mounts(scene, mounts):
     import equinox as eqx
 
     return eqx.tree_at(lambda s: s.board.mounts, scene, mounts)
+
+
+def test_cli_impact_of_a_tilted_box(tmp_path, capsys):
+    from beamdrop_jax.cli import main
+
+    assert main(["impact", "--scene", "phone", "--json", "--no-plots", "--out", str(tmp_path)]) == 0
+    import json
+
+    report = json.loads(capsys.readouterr().out)
+    from beamdrop_jax._response.simulate import drop_motion
+
+    motion = drop_motion(bd.load_scene("phone"))[0]  # what simulate drives the board with
+    np.testing.assert_allclose(report["board_jumps_A_B_roll_m_per_s"], motion.first_jumps(), rtol=1e-12)
+    assert report["struck_point_from_G_mm"] == pytest.approx([-75.0, -4.0, 37.5])
+    assert main(["impact", "--scene", "phone", "--law", "newton", "--no-plots", "--out", str(tmp_path)]) == 2
+    assert "poisson or stronge" in capsys.readouterr().err
