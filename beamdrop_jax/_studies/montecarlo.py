@@ -125,7 +125,9 @@ class DropDistribution(eqx.Module):
     def sample(self, scene: Scene, n: int, key) -> Scene:
         """n scenes: the varied fields get a leading axis n, the others stay as in `scene`."""
         out = scene
-        keys = jax.random.split(key, len(_FIELDS))
+        # The plane's seven fields keep the streams they had before the tilt joined them (the same key, the same
+        # drops); the tilt draws from a key of its own.
+        keys = [*jax.random.split(key, len(_FIELDS) - 1), jax.random.fold_in(key, len(_FIELDS))]
         for (name, path), k in zip(_FIELDS.items(), keys):
             spec = getattr(self, name)
             if spec is None:
