@@ -44,7 +44,7 @@ class Flag(enum.IntFlag):
     GAUGE_OUTSIDE = 4194304  # a strain gauge off the plate, inside a mount's disc, or not finite
     OUTSIDE_THEORY = 8388608  # a plate too thick for thin-plate theory, or deflecting beyond small rotations
     NOT_SEPARATED = 16777216  # a compliant landing still in contact at its time bound
-    OUT_OF_PLANE = 33554432  # a tilted box drop asked of a model built for the plane (compliant landing, clattering)
+    OUT_OF_PLANE = 33554432  # a tilted box asked of a model built for the plane, or a tilt on a plane section
 
     @classmethod
     def describe(cls, flags) -> list[str]:

@@ -154,7 +154,8 @@ def numpy_superposed_peak_stress(scene: Scene, orientations, table):
 
 
 def scipy_peak_stress(scene: Scene, jumps, method="RK45", n_modes=6, rtol=1e-8, atol=1e-12, nx=None, nt=None):
-    """Peak stress of one drop from its support jumps (dvA, dvB) by `scipy.integrate.solve_ivp`."""
+    """Peak stress of one drop from its support jumps (dvA, dvB) by `scipy.integrate.solve_ivp` (a roll dvR after
+    them is ignored: a beam has no width)."""
     from scipy.integrate import solve_ivp
 
     f = lambda v: float(np.asarray(v))  # noqa: E731
@@ -168,7 +169,7 @@ def scipy_peak_stress(scene: Scene, jumps, method="RK45", n_modes=6, rtol=1e-8, 
     omega = np.sqrt(w2)
     zeta, tau = f(b.damping_ratio), f(scene.contact.duration)
     pA, pB = -2 / (kk * math.pi), 2 * (-1.0) ** kk / (kk * math.pi)
-    dvA, dvB = (float(v) for v in jumps)
+    dvA, dvB = (float(v) for v in np.asarray(jumps)[:2])
     window = tau + 2 * math.pi / omega[0]
 
     def rhs(t, y):

@@ -274,6 +274,13 @@ class Scene(eqx.Module):
             cls, name = _field_at(path, self)
             valid = cls.RANGES[name][0]
             new = as_float(value, path, valid)
+            if name == "principal_inertia":
+                if not self.housing.is_box:
+                    raise ValueError(f"{path} (I1, I2, I3) describes a box: give housing.depth first (m), or "
+                                     "housing.radius_of_gyration for the plane section")
+                if jnp.shape(new)[-1:] != (3,):
+                    raise ValueError(f"{path} must be the principal moments (I1, I2, I3), kg m^2; got shape "
+                                     f"{jnp.shape(new)}")
             if check_ranges:
                 valid.require(new, path)
             section = path.split(".")[0]
@@ -304,10 +311,24 @@ def _field_at(path: str, scene=None):
     return classes[parts[0]], parts[1]
 
 
+def _box_only(scene):
+    """Box-only fields set on a plane section (no `Housing.depth`): a tilt or a depth offset that would change
+    nothing. False for a box."""
+    if scene.housing.is_box:
+        return False
+    xp = array_module(scene)
+    return (xp.asarray(scene.drop.tilt) != 0) | (xp.asarray(scene.placement.depth_offset) != 0)
+
+
 def _check_fits(scene) -> None:
     if not is_concrete(scene):
         return
     scene = on_host(scene)
+    if np.any(_box_only(scene)):
+        raise ValueError(
+            f"Drop.tilt = {float(np.max(np.abs(scene.drop.tilt))):g} rad and Placement.depth_offset = "
+            f"{float(np.max(np.abs(scene.placement.depth_offset))):g} m turn or move things out of the plane of "
+            "motion, which a plane section does not have; valid: 0 for both, or a box housing (Housing.depth, m)")
     if not np.any(_board_outside(scene)):
         return
     ends = board_ends(scene.placement, scene.board.length)
@@ -337,6 +358,7 @@ def scene_flags(scene: Scene):
         *(range_flags(getattr(scene, section)) for section in SECTIONS if section != "board"),
         scene.board.flags(),
         flag_if(_board_outside(scene), Flag.BOARD_OUTSIDE_HOUSING),
+        flag_if(_box_only(scene), Flag.OUT_OF_PLANE),
     )
 
 
