@@ -404,8 +404,9 @@ def plot_sensitivity(rows, quantity: str = "stress", *, top: int = 15, ax=None):
 
 
 def plot_landing(scene, numerics=None):
-    """A drop's compliant landing over the board's peak window: each corner's normal force (top) and the board
-    supports' normal acceleration (bottom, in g), against the rigid law's half-sine at the first corner."""
+    """A drop's compliant landing over the board's peak window: each corner's (a box's: vertex's) normal force (top)
+    and the board supports' normal acceleration (bottom, in g), against the rigid law's half-sine at the first
+    corner (a box's: vertex)."""
     import matplotlib.pyplot as plt
 
     from .._common.checks import GRAVITY
@@ -415,16 +416,21 @@ def plot_landing(scene, numerics=None):
     h = landing_histories(scene, Numerics() if numerics is None else numerics)
     t = np.asarray(h.t) * 1e3
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(7.5, 6.0), sharex=True, layout="constrained")
-    names = ("(+W/2, +H/2)", "(-W/2, +H/2)", "(-W/2, -H/2)", "(+W/2, -H/2)")
     forces = np.asarray(h.forces)
+    if forces.shape[1] == 8:  # a box's vertices, in `box_vertices`' order
+        names = [f"vertex ({'+-'[1 - (i >> 2 & 1)]}W/2, {'+-'[1 - (i >> 1 & 1)]}H/2, {'+-'[1 - (i & 1)]}D/2)"
+                 for i in range(8)]
+    else:
+        names = [f"corner {c}" for c in ("(+W/2, +H/2)", "(-W/2, +H/2)", "(-W/2, -H/2)", "(+W/2, -H/2)")]
     for i, name in enumerate(names):
         if forces[:, i].max() > 0:
-            top.plot(t, forces[:, i] / 1e3, label=f"corner {name}")
+            top.plot(t, forces[:, i] / 1e3, label=name)
     top.set_ylabel("normal force (kN)")
     top.legend(fontsize=8)
     weight = float(h.weight)
     share = "the answer" if weight == 1.0 else f"{weight:.2g} of the answer, the rest the rigid law's"
-    top.set_title(f"Compliant landing at {np.degrees(float(scene.drop.orientation)):.3g} deg "
+    tilt = f", tilt {np.degrees(float(scene.drop.tilt)):.3g} deg" if scene.housing.is_box else ""
+    top.set_title(f"Compliant landing at {np.degrees(float(scene.drop.orientation)):.3g} deg{tilt} "
                   f"(Contact.model {scene.contact.model!r}: {share})", fontsize=10)
     for j, (end, colour) in enumerate((("A", "tab:blue"), ("B", "tab:red"))):
         bottom.plot(t, np.asarray(h.support)[:, j] / GRAVITY, color=colour, label=f"support {end}: landing")

@@ -28,7 +28,10 @@ from jaxtyping import Array, Float
 from .._common.checks import GRAVITY
 from .._impact.clatter import next_contact
 from .._common.compile import filter_jit
-from .._impact.kinematics import HousingImpact, _in_ground, _support_jumps, housing_impact
+from .._impact.box import BoxImpact, box_vertices
+from .._impact.box_landing import BoxLanding, box_landing
+from .._impact.kinematics import (HousingImpact, _in_ground, _support_jumps, box_housing_impact, drop_jumps,
+                                  housing_impact)
 from .._impact.landing import Landing, _landing, housing_corners
 from .._impact.motion import HalfSine, LandingMotion
 from .._scene.containers import Scene, board_ends
@@ -72,15 +75,50 @@ def compliant_weight(scene: Scene, numerics: Numerics, hit: HousingImpact):
     if model == "compliant":
         return jnp.ones_like(scene.contact.duration)
     tau = scene.contact.duration
-    t2 = next_strike_time(scene, hit)
-    u = jnp.clip(((1.0 + BLEND) * tau - t2) / (BLEND * jnp.where(tau > 0, tau, 1.0)), 0.0, 1.0)
-    w = jnp.where(hit.flat, 1.0, u * u * (3.0 - 2.0 * u))
+    w = jnp.where(hit.flat, 1.0, _smoothstep(next_strike_time(scene, hit), tau))
     # A contact longer than the board's fundamental period loads it quasi-statically, and the sampled landing's
     # board solve would need more steps than it is given over such a window: the rigid law's closed form there.
     slow = tau > fundamental_period(scene.board)
-    if scene.housing.is_box:  # the compliant landing is the plane section's: a tilted box takes the 3D rigid law
-        slow = slow | (scene.drop.tilt != 0)
+    if scene.housing.is_box:
+        w = box_compliant_weight(scene, numerics)
     return jnp.where((tau > 0) & ~slow, w, 0.0)
+
+
+def _smoothstep(t2, tau):
+    u = jnp.clip(((1.0 + BLEND) * tau - t2) / (BLEND * jnp.where(tau > 0, tau, 1.0)), 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+def box_next_strike_time(scene: Scene, hit: BoxImpact):
+    """When another vertex of a box strikes after the 3D rigid law's first strike `hit`, s (inf: none): each
+    vertex's height in free flight to second order in time (G's fall and the spin's centripetal term about the
+    first-touch attitude), the struck vertex left out. The time matters where it is short, a few contact
+    durations at most, where the body has turned little."""
+    h, d = scene.housing, scene.drop
+    zero = jnp.zeros_like(d.spin)
+    v = jnp.stack([d.horizontal_speed, -jnp.sqrt(2.0 * GRAVITY * jnp.maximum(d.height, 0.0)), zero]) + hit.dV
+    spin = jnp.stack([zero, zero, d.spin]) + hit.dOmega
+    arms = box_vertices(h.width, h.height, h.depth) @ hit.attitude.T
+    height = arms[:, 1] - jnp.min(arms[:, 1])
+    rate = v[1] + jnp.cross(spin, arms)[:, 1]
+    accel = -GRAVITY + jnp.cross(spin, jnp.cross(spin, arms))[:, 1]
+    # The first root of height + rate t + accel t^2 / 2 = 0, in the form that stays finite as accel -> 0.
+    root = jnp.sqrt(jnp.maximum(rate**2 - 2.0 * accel * height, 0.0))
+    den = root - rate
+    ok = (den > 0) & (rate**2 - 2.0 * accel * height >= 0)
+    t = jnp.where(ok, 2.0 * height / jnp.where(ok, den, 1.0), jnp.inf)
+    size = jnp.sqrt(h.width**2 + h.height**2 + h.depth**2)
+    struck = jnp.all(jnp.abs(arms - hit.r) <= 1e-9 * size, axis=-1)
+    return jnp.min(jnp.where(struck, jnp.inf, t))
+
+
+def box_compliant_weight(scene: Scene, numerics: Numerics):
+    """A box's compliant share under `"auto"`: 1 where vertices strike together (an edge or a face level: tilt = 0
+    lands on an edge along the depth), else the smoothstep in the next vertex's strike time after the 3D rigid law's
+    first (`box_next_strike_time`), as the plane's."""
+    hit = box_housing_impact(scene, numerics.law)
+    tau = scene.contact.duration
+    return jnp.where(hit.tied, 1.0, _smoothstep(box_next_strike_time(scene, hit), tau))
 
 
 def _velocity(scene: Scene):
@@ -88,10 +126,17 @@ def _velocity(scene: Scene):
     return jnp.stack([d.horizontal_speed, -jnp.sqrt(2.0 * GRAVITY * jnp.maximum(d.height, 0.0))])
 
 
-def scene_landing(scene: Scene, window, max_steps: int = 32768) -> Landing:
-    """The compliant landing of a drop, integrated from the first touch to `window` (s) through every strike."""
+def scene_landing(scene: Scene, window, max_steps: int = 32768) -> Landing | BoxLanding:
+    """The compliant landing of a drop, integrated from the first touch to `window` (s) through every strike: the
+    plane section's (`Landing`) or a box's (`BoxLanding`)."""
     h, c, d = scene.housing, scene.contact, scene.drop
     nan = jnp.asarray(jnp.nan, dtype=jnp.result_type(float))
+    if h.is_box:
+        v = _velocity(scene)
+        zero = jnp.zeros_like(d.spin)
+        return box_landing(h.width, h.height, h.depth, h.mass, h.moments, c.friction, c.restitution, c.duration,
+                           d.orientation, d.tilt, jnp.stack([v[0], v[1], zero]), jnp.stack([zero, zero, d.spin]),
+                           jnp.asarray(GRAVITY, dtype=nan.dtype), nan, window, max_steps=max_steps, through=True)
     return _landing(h.width, h.height, h.mass, h.inertia, c.friction, c.restitution, c.duration, d.orientation,
                     _velocity(scene), d.spin, jnp.asarray(GRAVITY, dtype=nan.dtype), nan, window, rtol=1e-10,
                     atol=1e-10, max_steps=max_steps, through=True)
@@ -104,6 +149,8 @@ def landing_motion(scene: Scene, numerics: Numerics, weight, rigid_jumps,
     window = landing_window(scene, numerics)
     landing = scene_landing(scene, window)
     t = jnp.linspace(0.0, 1.0, samples) * window
+    if scene.housing.is_box:
+        return _box_landing_motion(scene, numerics, weight, rigid_jumps, landing, t, window)
     ends = board_ends(scene.placement, scene.board.length)
     # Each sample is the mean contact acceleration over the interval of one sample spacing around it, from the
     # contact velocity at the interval's ends: a corner's touch (a jump in its force) then moves the samples
@@ -116,19 +163,46 @@ def landing_motion(scene: Scene, numerics: Numerics, weight, rigid_jumps,
     axis = _in_ground(jnp.stack(sincos(scene.placement.angle)[::-1]), *sincos(scene.drop.orientation))
     compliant = acc[..., 1] * axis[0] - acc[..., 0] * axis[1]
     compliant = jnp.concatenate([compliant, jnp.zeros_like(compliant[:, :1])], axis=-1)  # the plane: no roll
+    return _blend(scene, weight, rigid_jumps, t, compliant), landing
+
+
+def _blend(scene, weight, rigid_jumps, t, compliant):
     rigid = jax.vmap(HalfSine(rigid_jumps[0], rigid_jumps[1], scene.contact.duration, rigid_jumps[2]).acceleration)(t)
     a = weight * compliant + (1.0 - weight) * rigid
-    return LandingMotion(t, a[:, 0], a[:, 1], scene.contact.duration, weight, a[:, 2]), landing
+    return LandingMotion(t, a[:, 0], a[:, 1], scene.contact.duration, weight, a[:, 2])
+
+
+def _box_landing_motion(scene: Scene, numerics: Numerics, weight, rigid_jumps, landing: BoxLanding, t, window):
+    """`landing_motion` on a box: the three rigid-motion inputs (heave at ends A and B, roll across the width) along
+    the board normal, from the contact velocity at the ends and at the board's centre +- half its width along e3
+    (as `box_support_jumps` reads the rigid law's jumps)."""
+    p = scene.placement
+    ends = board_ends(p, scene.board.length)
+    centre = 0.5 * (ends[0] + ends[1])
+    z = jnp.broadcast_to(p.depth_offset, ends.shape[:-1])
+    half = 0.5 * scene.board.width
+    points = jnp.stack([jnp.concatenate([ends[0], z[:1]]), jnp.concatenate([ends[1], z[1:]]),
+                        jnp.concatenate([centre, (p.depth_offset + half)[None]]),
+                        jnp.concatenate([centre, (p.depth_offset - half)[None]])])
+    samples = t.shape[0]
+    dt = window / (samples - 1)
+    edges = landing.contact_velocity(jnp.linspace(-0.5, samples - 0.5, samples + 1) * dt, points)  # (n+1, 4, 3)
+    s, c = sincos(p.angle)
+    normal = landing.attitude @ jnp.stack([-s, c, jnp.zeros_like(s)])
+    along = edges @ normal  # (n + 1, 4)
+    acc = (along[1:] - along[:-1]) / dt
+    compliant = jnp.stack([acc[:, 0], acc[:, 1], acc[:, 2] - acc[:, 3]], axis=-1)
+    return _blend(scene, weight, rigid_jumps, t, compliant), landing
 
 
 class LandingHistories(eqx.Module):
     """A drop's landing over the peak window, for figures and tables: times `t` (s), each corner's normal force
-    `forces` (n, 4) (N, corners in `housing_corners`' order), the supports' normal acceleration `support` (n, 2)
+    `forces` (n, 4) (N, corners in `housing_corners`' order; a box's vertices (n, 8) in `box_vertices`' order), the supports' normal acceleration `support` (n, 2)
     (m/s^2, ends A and B; blended as `simulate` uses it) and the rigid law's half-sine `rigid` (n, 2), and the
     compliant landing's `weight`."""
 
     t: Float[Array, " n"]
-    forces: Float[Array, "n 4"]
+    forces: Float[Array, "n k"]
     support: Float[Array, "n 2"]
     rigid: Float[Array, "n 2"]
     weight: Float[Array, ""]
@@ -139,9 +213,9 @@ def landing_histories(scene: Scene, numerics: Numerics) -> LandingHistories:
     """The landing of a concrete drop as `LandingHistories` (the compliant landing whatever `Contact.model`; its
     `weight` is the model's)."""
     hit = housing_impact(scene, law=numerics.law)
-    jumps = _support_jumps(scene, hit, scene.drop.orientation)
+    jumps, _ = drop_jumps(scene, _support_jumps(scene, hit, scene.drop.orientation), numerics.law)
     weight = compliant_weight(scene, numerics, hit)
     motion, landing = landing_motion(scene, numerics, jnp.ones_like(weight), jumps)
-    rigid = jax.vmap(HalfSine(jumps[0], jumps[1], scene.contact.duration).acceleration)(motion.t)[:, :2]
+    rigid = jax.vmap(HalfSine(jumps[0], jumps[1], scene.contact.duration, jumps[2]).acceleration)(motion.t)[:, :2]
     return LandingHistories(motion.t, landing.forces(motion.t)[..., 1], jnp.stack([motion.aA, motion.aB], -1),
                             rigid, weight)

@@ -78,8 +78,8 @@ def _drop_motion(scene: Scene, numerics: Numerics):
     flags = impacts.flags
     if box is not None:
         tilted = scene.drop.tilt != 0
-        flags = combine(flags, jnp.where(tilted, box.flags, 0), flag_if(
-            tilted & ((numerics.max_impacts > 1) | (scene.contact.model == "compliant")), Flag.OUT_OF_PLANE))
+        flags = combine(flags, jnp.where(tilted, box.flags, 0),
+                        flag_if(tilted & (numerics.max_impacts > 1), Flag.OUT_OF_PLANE))
     if numerics.max_impacts == 1:
         motion = support_motion(scene, jumps)
     else:
@@ -162,14 +162,10 @@ def _raise_eagerly(scene: Scene, numerics: Numerics, flags, impacts: Impacts | N
 
 
 def _raise_if_out_of_plane(scene: Scene, numerics: Numerics) -> None:
-    """A tilted box asked of a model that follows the plane section only (`Flag.OUT_OF_PLANE` under jit)."""
+    """A tilted box asked to clatter, which follows the plane section only (`Flag.OUT_OF_PLANE` under jit)."""
     if not scene.housing.is_box or not is_concrete(scene.drop.tilt) or not np.any(np.asarray(scene.drop.tilt)):
         return
     tilt = float(np.max(np.abs(np.asarray(scene.drop.tilt))))
-    if scene.contact.model == "compliant":
-        raise ValueError(f'Contact.model = "compliant" with Drop.tilt = {tilt:g} rad: the compliant landing follows '
-                         'the plane section only; valid: tilt = 0, or Contact.model "rigid" or "auto" (a tilted '
-                         "box then takes the 3D rigid law at its lowest vertex)")
     if numerics.max_impacts > 1:
         raise ValueError(f"Numerics.max_impacts = {numerics.max_impacts} with Drop.tilt = {tilt:g} rad: clattering "
                          "follows the plane section only; valid: max_impacts = 1 for a tilted box, or tilt = 0")

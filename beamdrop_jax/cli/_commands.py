@@ -22,7 +22,11 @@ def _landing(scene, res) -> str:
     box = res if hasattr(res, "attitude") else getattr(res, "box", None)  # a BoxImpact, or a Response's
     if box is not None and float(scene.drop.tilt) != 0:  # a tilted box: its 3D impact says what struck
         level = int(np.sum(np.abs(np.asarray(box.attitude)[1]) < 64 * np.finfo(float).eps))
-        return ("onto a corner", "onto an edge (G above its midpoint)", "flat onto a face")[min(level, 2)]
+        what = ("onto a corner", "onto an edge (G above its midpoint)", "flat onto a face")[min(level, 2)]
+        weight = getattr(res, "landing_weight", None)
+        if level == 0 and weight is not None and float(weight) > 0:
+            return "nearly on an edge or a face (vertices strike together)"
+        return what
     hit = getattr(res, "housing", res)  # a Response or a HousingImpact
     weight = getattr(res, "landing_weight", None)
     if (hit is None or not bool(hit.flat)) and weight is not None and float(weight) > 0:
@@ -42,11 +46,11 @@ def _impact_figure(bd, scene, res):
 
 
 def _impact_figures(bd, scene, res, output, args):
-    """A box's 3D figure (box.png), and the plane section's impact figure unless the box is tilted (its 3D impulse
-    is in box.png)."""
+    """A box's 3D figure (box.png), and the impact figure: the compliant landing's where the drop took it, else the
+    plane section's rigid impact unless the box is tilted (its 3D impulse is in box.png)."""
     if scene.housing.is_box:
         _save(output, bd.plot_box(scene, res), "box.png", args)
-        if float(scene.drop.tilt) != 0:
+        if float(scene.drop.tilt) != 0 and float(res.landing_weight) == 0:
             return
     _save(output, *_impact_figure(bd, scene, res), args)
 
