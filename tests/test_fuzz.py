@@ -9,7 +9,6 @@ import math
 import equinox as eqx
 import jax
 import numpy as np
-import pytest
 from hypothesis import HealthCheck, example, given, settings, strategies as st
 
 import beamdrop_jax as bd

@@ -143,7 +143,7 @@ def as_float(value, name: str, valid="", dtype=None):
         raise ValueError(f"{name} = {value!r} is a {type(value).__name__}, not a number{where}")
     try:
         arr = np.asarray(value)
-    except Exception as err:  # ragged lists and the like
+    except Exception:  # ragged lists and the like
         raise ValueError(f"{name} = {value!r} is not a number or an array of numbers{where}") from None
     if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
         kind = "bool" if arr.dtype == bool else str(arr.dtype)

@@ -34,9 +34,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from .._common.checks import Flag, combine, flag_if
 from .box import box_vertices
-from .landing import _DSIGMA_MAX, _FORGET_RATE, _LAMBDA0, _NU, _NU_WARP, _SIGMA_BOUND, E_MIN, _over_times
+from .landing import _FORGET_RATE, _LAMBDA0, _NU, _NU_WARP, E_MIN, _flags, _over_times, _solve, _state_at
 
 _N = 8  # vertices
 _D, _DMAX, _P, _TC, _TL = 13, 21, 29, 53, 61  # where each vertex block starts in the state
@@ -174,22 +173,7 @@ class BoxLanding(eqx.Module):
     gravity: Float[Array, ""]
 
     def _state(self, t):
-        """The state at t (s), held at its ends outside [0, t_end] (bisection in the warped time, then one Newton
-        step so the derivative is right: as `Landing._state`)."""
-        target = jnp.clip(t, 0.0, self.t_end) / self.model.T
-
-        def halve(_, bounds):
-            lo, hi = bounds
-            mid = 0.5 * (lo + hi)
-            early = self.solution.evaluate(mid)[_T3] < target
-            return jnp.where(early, mid, lo), jnp.where(early, hi, mid)
-
-        lo, hi = jax.lax.fori_loop(0, 60, halve, jax.lax.stop_gradient((self.solution.t0, self.solution.ts[-1])))
-        sigma = jax.lax.stop_gradient(0.5 * (lo + hi))
-        y = self.solution.evaluate(sigma)
-        rate = self.model.rhs(sigma, y)[_T3]
-        return self.solution.evaluate(jnp.clip(sigma - (y[_T3] - target) / rate, self.solution.t0,
-                                               self.solution.ts[-1]))
+        return _state_at(self.solution, self.model.rhs, _T3, self.model.T, self.t_end, t)
 
     def _motion(self, t):
         """(v_G, spin) in the ground frame at scalar t, SI, free flight outside the landing."""
@@ -263,20 +247,8 @@ def box_landing(W, H, D, m, moments, mu, e, tau, orientation, tilt, v, w, g, v_e
     w_body = Rot.T @ w * model.R / model.V
     y_init = jnp.concatenate([jnp.zeros(3), v / model.V, q0, w_body, -model.h0, -model.h0,
                               jnp.zeros(3 * _N + 2 * _N + 1)])
-    t_bound = jnp.where(jnp.isnan(t_max), 10.0 * model.T, t_max) / model.T
-    controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=0.3, icoeff=0.3, dtmax=_DSIGMA_MAX)
-    if through:
-        event = diffrax.Event(lambda sigma, y, args, **kw: y[_T3] >= t_bound)
-    else:
-        event = diffrax.Event(lambda sigma, y, args, **kw: model.separated(y) | (y[_T3] >= t_bound))
-    sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(model.rhs), diffrax.Tsit5(), 0.0, _SIGMA_BOUND, None, y_init,
-        saveat=diffrax.SaveAt(t1=True, dense=True), stepsize_controller=controller, event=event,
-        max_steps=max_steps, throw=False,
-    )
-    y_end = sol.ys[-1]
-    failed = sol.result != diffrax.RESULTS.event_occurred
-    separated = ~failed & model.separated(y_end)
+    sol, y_end, failed, separated = _solve(model, y_init, _T3, t_max, rtol=rtol, atol=atol, max_steps=max_steps,
+                                           through=through)
     P = y_end[_P:_TC].reshape(_N, 3) * m * model.V
     v_end = y_end[3:6] * model.V
     w_body_end = y_end[10:13] * model.V / model.R
@@ -286,16 +258,7 @@ def box_landing(W, H, D, m, moments, mu, e, tau, orientation, tilt, v, w, g, v_e
     energy = (0.5 * m * (v_end @ v_end - v @ v) + 0.5 * (moments @ w_body_end**2 - moments @ (Rot.T @ w) ** 2)
               + m * g * rise)
     _, _, _, d0, d_rate0 = model.kinematics(y_init)
-    approaching = jnp.any((d0 >= 0.0) & (d_rate0 > 0.0))
-    flags = combine(
-        flag_if(failed, Flag.SOLVER_FAILED),
-        flag_if(~separated & ~failed & (not through), Flag.NOT_SEPARATED),
-        flag_if(~approaching, Flag.SEPARATING_CONTACT),
-        flag_if(~jnp.all(jnp.isfinite(y_end)), Flag.NONFINITE_RESULT),
-        flag_if(~(tau > 0), Flag.DURATION_NEGATIVE),
-        flag_if(~((e >= 0) & (e <= 1)), Flag.RESTITUTION_RANGE),
-        flag_if(~(mu >= 0), Flag.FRICTION_NEGATIVE),
-    )
+    flags = _flags(failed, separated, through, d0, d_rate0, y_end, tau, e, mu)
     return BoxLanding(P=P, dV=jnp.sum(P, axis=0) / m, dOmega=spin_end - w, t_end=t_end,
                       contact_time=y_end[_TC:_TL] * model.T, loading_time=y_end[_TL:_T3] * model.T,
                       energy_change=energy, separated=separated, steps=sol.stats["num_accepted_steps"], flags=flags,

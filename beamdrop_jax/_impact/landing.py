@@ -267,25 +267,7 @@ class Landing(eqx.Module):
             return f"Landing(P.shape={tuple(jnp.shape(self.P))})"
 
     def _state(self, t):
-        """Nondimensional state at t (s), held at its ends outside [0, t_end]: the warped time sigma where the
-        dense solution's physical time is t, by bisection (it grows monotonically with sigma)."""
-        target = jnp.clip(t, 0.0, self.t_end) / self.model.T
-
-        def halve(_, bounds):
-            lo, hi = bounds
-            mid = 0.5 * (lo + hi)
-            early = self.solution.evaluate(mid)[_T] < target
-            return jnp.where(early, mid, lo), jnp.where(early, hi, mid)
-
-        lo, hi = jax.lax.fori_loop(0, 60, halve, jax.lax.stop_gradient((self.solution.t0, self.solution.ts[-1])))
-        sigma = jax.lax.stop_gradient(0.5 * (lo + hi))
-        # The bisection's sigma carries no derivative, but the physical time at a fixed sigma moves with the
-        # inputs: one Newton step on t(sigma) = target puts d(sigma)/d(input) = -(dt/d input) / (dt/d sigma) in
-        # (implicit function theorem; its value change is below the bisection's resolution).
-        y = self.solution.evaluate(sigma)
-        rate = self.model.rhs(sigma, y)[_T]
-        return self.solution.evaluate(jnp.clip(sigma - (y[_T] - target) / rate, self.solution.t0,
-                                               self.solution.ts[-1]))
+        return _state_at(self.solution, self.model.rhs, _T, self.model.T, self.t_end, t)
 
     def _rigid(self, t):
         """(v_G, theta, w, a_G, alpha, corner forces / (m V / T)) at scalar time t, SI."""
@@ -381,6 +363,28 @@ class Landing(eqx.Module):
         return _over_times(one, t)
 
 
+def _state_at(solution: diffrax.Solution, rhs, time_index: int, T, t_end, t):
+    """Nondimensional state at t (s) of a landing solved in warped time, held at its ends outside [0, t_end]: the
+    warped time sigma where the dense solution's physical time (state entry `time_index`, in units of T) is t, by
+    bisection (it grows monotonically with sigma)."""
+    target = jnp.clip(t, 0.0, t_end) / T
+
+    def halve(_, bounds):
+        lo, hi = bounds
+        mid = 0.5 * (lo + hi)
+        early = solution.evaluate(mid)[time_index] < target
+        return jnp.where(early, mid, lo), jnp.where(early, hi, mid)
+
+    lo, hi = jax.lax.fori_loop(0, 60, halve, jax.lax.stop_gradient((solution.t0, solution.ts[-1])))
+    sigma = jax.lax.stop_gradient(0.5 * (lo + hi))
+    # The bisection's sigma carries no derivative, but the physical time at a fixed sigma moves with the
+    # inputs: one Newton step on t(sigma) = target puts d(sigma)/d(input) = -(dt/d input) / (dt/d sigma) in
+    # (implicit function theorem; its value change is below the bisection's resolution).
+    y = solution.evaluate(sigma)
+    rate = rhs(sigma, y)[time_index]
+    return solution.evaluate(jnp.clip(sigma - (y[time_index] - target) / rate, solution.t0, solution.ts[-1]))
+
+
 def _over_times(fn, t):
     t = jnp.asarray(t, dtype=jnp.result_type(float))
     if t.ndim == 0:
@@ -469,19 +473,16 @@ def _model(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps) -> _Model:
                   e=e_used, mu=mu, eps=eps, g=g * T / V, mR2_I=m * R**2 / I, L_R=L / R)
 
 
-def _landing(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps, t_max, *, rtol, atol, max_steps,
-             through: bool = False) -> Landing:
-    """`compliant_landing` on checked arrays; `through`: integrate to `t_max`, not stopping at separation."""
-    model = _model(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps)
-    # d = d_max = minus the corners' heights (no corner has a memory yet); the physical time last.
-    y_init = jnp.concatenate([jnp.zeros(2), v / model.V, jnp.zeros(1), (w * model.R / model.V)[None], -model.h0,
-                              -model.h0, jnp.zeros(17)])
+def _solve(model, y_init, time_index: int, t_max, *, rtol, atol, max_steps, through: bool):
+    """Integrate a landing's `model` (`rhs` in the warped time, `separated`) from `y_init`: (solution, end state,
+    failed, separated). It stops at separation or the bound `t_max` (s; NaN: 10 T), or with `through` at `t_max`
+    only."""
     t_bound = jnp.where(jnp.isnan(t_max), 10.0 * model.T, t_max) / model.T
     controller = diffrax.PIDController(rtol=rtol, atol=atol, pcoeff=0.3, icoeff=0.3, dtmax=_DSIGMA_MAX)
     if through:
-        event = diffrax.Event(lambda sigma, y, args, **kw: y[_T] >= t_bound)
+        event = diffrax.Event(lambda sigma, y, args, **kw: y[time_index] >= t_bound)
     else:
-        event = diffrax.Event(lambda sigma, y, args, **kw: model.separated(y) | (y[_T] >= t_bound))
+        event = diffrax.Event(lambda sigma, y, args, **kw: model.separated(y) | (y[time_index] >= t_bound))
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(model.rhs), diffrax.Tsit5(), 0.0, _SIGMA_BOUND, None, y_init,
         saveat=diffrax.SaveAt(t1=True, dense=True), stepsize_controller=controller, event=event,
@@ -489,7 +490,32 @@ def _landing(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps, t_max, *, rtol, atol
     )
     y_end = sol.ys[-1]
     failed = sol.result != diffrax.RESULTS.event_occurred
-    separated = ~failed & model.separated(y_end)
+    return sol, y_end, failed, ~failed & model.separated(y_end)
+
+
+def _flags(failed, separated, through: bool, d0, d_rate0, y_end, tau, e, mu):
+    """A landing's `Flag` mask from its solve and its contact's fields (d0, d_rate0: penetrations and their rates
+    at first touch)."""
+    return combine(
+        flag_if(failed, Flag.SOLVER_FAILED),
+        flag_if(~separated & ~failed & (not through), Flag.NOT_SEPARATED),
+        flag_if(~jnp.any((d0 >= 0.0) & (d_rate0 > 0.0)), Flag.SEPARATING_CONTACT),
+        flag_if(~jnp.all(jnp.isfinite(y_end)), Flag.NONFINITE_RESULT),
+        flag_if(~(tau > 0), Flag.DURATION_NEGATIVE),
+        flag_if(~((e >= 0) & (e <= 1)), Flag.RESTITUTION_RANGE),
+        flag_if(~(mu >= 0), Flag.FRICTION_NEGATIVE),
+    )
+
+
+def _landing(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps, t_max, *, rtol, atol, max_steps,
+             through: bool = False) -> Landing:
+    """`compliant_landing` on checked arrays; `through`: integrate to `t_max`, not stopping at separation."""
+    model = _model(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps)
+    # d = d_max = minus the corners' heights (no corner has a memory yet); the physical time last.
+    y_init = jnp.concatenate([jnp.zeros(2), v / model.V, jnp.zeros(1), (w * model.R / model.V)[None], -model.h0,
+                              -model.h0, jnp.zeros(17)])
+    sol, y_end, failed, separated = _solve(model, y_init, _T, t_max, rtol=rtol, atol=atol, max_steps=max_steps,
+                                           through=through)
     P = jnp.stack([y_end[14:18], y_end[18:22]], axis=-1) * m * model.V
     dv_G = jnp.sum(P, axis=0) / m
     _, v_end, _, w_end = model.dimensional(y_end)
@@ -497,18 +523,8 @@ def _landing(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps, t_max, *, rtol, atol
     G_rise = y_end[1] * model.V * model.T
     energy = (0.5 * m * (v_end @ v_end - v @ v) + 0.5 * I * (w_end**2 - w**2) + m * g * G_rise)
     _, d0, d_rate0, _ = model.corner_state(y_init)
-    approaching = jnp.any((d0 >= 0.0) & (d_rate0 > 0.0))
-    finite = jnp.all(jnp.isfinite(y_end))
-    flags = combine(
-        flag_if(failed, Flag.SOLVER_FAILED),
-        flag_if(~separated & ~failed & (not through), Flag.NOT_SEPARATED),
-        flag_if(~approaching, Flag.SEPARATING_CONTACT),
-        flag_if(~finite, Flag.NONFINITE_RESULT),
-        flag_if(~(tau > 0), Flag.DURATION_NEGATIVE),
-        flag_if(~((e >= 0) & (e <= 1)), Flag.RESTITUTION_RANGE),
-        flag_if(~(mu >= 0), Flag.FRICTION_NEGATIVE),
-        flag_if(~jnp.all(jnp.isfinite(jnp.stack([theta, v[0], v[1], w, g]))), Flag.NONFINITE_INPUT),
-    )
+    flags = combine(_flags(failed, separated, through, d0, d_rate0, y_end, tau, e, mu),
+                    flag_if(~jnp.all(jnp.isfinite(jnp.stack([theta, v[0], v[1], w, g]))), Flag.NONFINITE_INPUT))
     return Landing(
         P=P, corners=housing_corners(W, H), dv_G=dv_G, dw=w_end - w, t_end=t_end,
         contact_time=y_end[22:26] * model.T, loading_time=y_end[26:30] * model.T, energy_change=energy,

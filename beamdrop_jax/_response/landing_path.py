@@ -28,7 +28,7 @@ from jaxtyping import Array, Float
 from .._common.checks import GRAVITY
 from .._impact.clatter import next_contact
 from .._common.compile import filter_jit
-from .._impact.box import BoxImpact, box_vertices
+from .._impact.box import BoxImpact, box_vertices, lowest_vertex
 from .._impact.box_landing import BoxLanding, box_landing
 from .._impact.kinematics import (HousingImpact, _in_ground, _support_jumps, box_housing_impact, drop_jumps,
                                   housing_impact)
@@ -80,7 +80,7 @@ def compliant_weight(scene: Scene, numerics: Numerics, hit: HousingImpact):
     # board solve would need more steps than it is given over such a window: the rigid law's closed form there.
     slow = tau > fundamental_period(scene.board)
     if scene.housing.is_box:
-        w = box_compliant_weight(scene, numerics)
+        w = box_compliant_weight(scene, numerics, w)
     return jnp.where((tau > 0) & ~slow, w, 0.0)
 
 
@@ -89,11 +89,12 @@ def _smoothstep(t2, tau):
     return u * u * (3.0 - 2.0 * u)
 
 
-def box_next_strike_time(scene: Scene, hit: BoxImpact):
-    """When another vertex of a box strikes after the 3D rigid law's first strike `hit`, s (inf: none): each
-    vertex's height in free flight to second order in time (G's fall and the spin's centripetal term about the
-    first-touch attitude), the struck vertex left out. The time matters where it is short, a few contact
-    durations at most, where the body has turned little."""
+def box_strike_times(scene: Scene, hit: BoxImpact):
+    """When the other vertices of a box strike after the 3D rigid law's first strike `hit`, s (inf: none):
+    `(t_edge, t_others)`, the struck vertex's partner along the depth (e3) and the first of the other six. Each
+    vertex's height in free flight to second order in time (G's fall, the spin's centripetal term) about the
+    first-touch attitude: the times matter where they are short, a few contact durations, where the body has turned
+    little."""
     h, d = scene.housing, scene.drop
     zero = jnp.zeros_like(d.spin)
     v = jnp.stack([d.horizontal_speed, -jnp.sqrt(2.0 * GRAVITY * jnp.maximum(d.height, 0.0)), zero]) + hit.dV
@@ -103,22 +104,49 @@ def box_next_strike_time(scene: Scene, hit: BoxImpact):
     rate = v[1] + jnp.cross(spin, arms)[:, 1]
     accel = -GRAVITY + jnp.cross(spin, jnp.cross(spin, arms))[:, 1]
     # The first root of height + rate t + accel t^2 / 2 = 0, in the form that stays finite as accel -> 0.
-    root = jnp.sqrt(jnp.maximum(rate**2 - 2.0 * accel * height, 0.0))
-    den = root - rate
-    ok = (den > 0) & (rate**2 - 2.0 * accel * height >= 0)
+    disc = rate**2 - 2.0 * accel * height
+    real = disc > 0
+    den = jnp.where(real, jnp.sqrt(jnp.where(real, disc, 1.0)), 0.0) - rate  # (a gradient-safe square root)
+    ok = (den > 0) & (disc >= 0)
     t = jnp.where(ok, 2.0 * height / jnp.where(ok, den, 1.0), jnp.inf)
-    size = jnp.sqrt(h.width**2 + h.height**2 + h.depth**2)
-    struck = jnp.all(jnp.abs(arms - hit.r) <= 1e-9 * size, axis=-1)
-    return jnp.min(jnp.where(struck, jnp.inf, t))
+    struck = lowest_vertex(d.orientation, d.tilt, h.width, h.height, h.depth).index
+    partner = jnp.bitwise_xor(struck, 1)  # the other end of its edge along e3
+    others = jnp.arange(8)
+    return t[partner], jnp.min(jnp.where((others == struck) | (others == partner), jnp.inf, t))
 
 
-def box_compliant_weight(scene: Scene, numerics: Numerics):
-    """A box's compliant share under `"auto"`: 1 where vertices strike together (an edge or a face level: tilt = 0
-    lands on an edge along the depth), else the smoothstep in the next vertex's strike time after the 3D rigid law's
-    first (`box_next_strike_time`), as the plane's."""
-    hit = box_housing_impact(scene, numerics.law)
+def edge_weight(scene: Scene, hit: BoxImpact):
+    """Under `"auto"`, the share of a box's first impact that its edge along the depth takes as one contact (the
+    plane section's impact, exact at tilt = 0) rather than its lowest vertex alone (the 3D rigid law): 1 at
+    tilt = 0, the smoothstep in the edge's other vertex's strike time (`box_strike_times`) over one to three
+    contact durations, as `compliant_weight`'s; 0 for tilts beyond 90 deg, where the edge is not the plane's."""
     tau = scene.contact.duration
-    return jnp.where(hit.tied, 1.0, _smoothstep(box_next_strike_time(scene, hit), tau))
+    t_edge = box_strike_times(scene, hit)[0]
+    tilt = scene.drop.tilt
+    return jnp.where(tilt == 0, 1.0, jnp.where(jnp.cos(tilt) > 0, _smoothstep(t_edge, tau), 0.0))
+
+
+def first_jumps(scene: Scene, numerics: Numerics, plane_jumps):
+    """The first impact's rigid-motion inputs (dvA, dvB, dvR) and the box's impact (None for a plane section):
+    `drop_jumps`, and under `"auto"` a box's blended with its edge's as one contact (`edge_weight`)."""
+    jumps, box = drop_jumps(scene, plane_jumps, numerics.law)
+    if box is not None and scene.contact.model == "auto" and numerics.max_impacts == 1:
+        w_edge = edge_weight(scene, box)
+        plane = jnp.concatenate([plane_jumps, jnp.zeros_like(jumps[:1])])
+        jumps = w_edge * plane + (1.0 - w_edge) * jumps
+    return jumps, box
+
+
+def box_compliant_weight(scene: Scene, numerics: Numerics, plane_weight):
+    """A box's compliant share under `"auto"`: where its edge along the depth lands as one contact
+    (`edge_weight`), the plane section's (`plane_weight`); where the lowest vertex strikes alone, 1 if other
+    vertices are level with it (an edge or a face out of the plane), else the smoothstep in the next of the other
+    six vertices' strike times, as the plane's."""
+    hit = box_housing_impact(scene, numerics.law)
+    w_edge = edge_weight(scene, hit)
+    tau = scene.contact.duration
+    others = jnp.where(hit.tied & (scene.drop.tilt != 0), 1.0, _smoothstep(box_strike_times(scene, hit)[1], tau))
+    return w_edge * plane_weight + (1.0 - w_edge) * others
 
 
 def _velocity(scene: Scene):
@@ -213,7 +241,7 @@ def landing_histories(scene: Scene, numerics: Numerics) -> LandingHistories:
     """The landing of a concrete drop as `LandingHistories` (the compliant landing whatever `Contact.model`; its
     `weight` is the model's)."""
     hit = housing_impact(scene, law=numerics.law)
-    jumps, _ = drop_jumps(scene, _support_jumps(scene, hit, scene.drop.orientation), numerics.law)
+    jumps = first_jumps(scene, numerics, _support_jumps(scene, hit, scene.drop.orientation))[0]
     weight = compliant_weight(scene, numerics, hit)
     motion, landing = landing_motion(scene, numerics, jnp.ones_like(weight), jumps)
     rigid = jax.vmap(HalfSine(jumps[0], jumps[1], scene.contact.duration, jumps[2]).acceleration)(motion.t)[:, :2]

@@ -17,10 +17,10 @@ from .._board.base import AbstractBoard
 from .._common.checks import Flag, combine, flag_if, is_concrete, raise_if_flagged
 from .._common.compile import filter_jit
 from .._impact.clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
-from .._impact.kinematics import drop_jumps, housing_impact
+from .._impact.kinematics import housing_impact
 from .._impact.motion import AbstractMotion, PulseTrain
 from .._scene.containers import Scene, check_scene, require_single, scene_flags
-from .landing_path import compliant_weight, landing_motion
+from .landing_path import compliant_weight, first_jumps, landing_motion
 from .line import _respond_line
 from .numerics import Numerics
 from .results import Response
@@ -74,7 +74,7 @@ def drop_motion(scene: Scene, numerics: Numerics | None = None):
 
 def _drop_motion(scene: Scene, numerics: Numerics):
     impacts, first = impact_sequence(scene, numerics.max_impacts, numerics.rest_speed, numerics.law)
-    jumps, box = drop_jumps(scene, impacts.support_jumps[0], numerics.law)
+    jumps, box = first_jumps(scene, numerics, impacts.support_jumps[0])
     flags = impacts.flags
     if box is not None:
         tilted = scene.drop.tilt != 0

@@ -54,7 +54,7 @@ def _box(region):
 
 
 def _angle_limit(scene: Scene, margin, region=None, max_angle=None):
-    W, H, L = scene.housing.width, scene.housing.height, scene.board.length
+    H, L = scene.housing.height, scene.board.length
     room = H - 2 * margin
     if region is not None:  # the box's distance from 0 along e2, which the centre must reach
         box = _box(region)
