@@ -273,3 +273,31 @@ def test_agrees_with_the_event_driven_scipy_reference():
             assert np.isfinite(res.Pn_stick[i]) == np.isfinite(ref["Pn_stick"]), (law, i, ref["modes"])
     assert modes >= {("slip",), ("slip", "stick"), ("stick",), ("islip",), ("slip", "islip")}, modes
     print(f"reference: largest relative error {worst:.2e}")
+
+
+def test_from_rest_closed_form_is_the_solved_law():
+    """A contact with no slip at first (a drop from rest): `from_rest=True` takes the straight piece in closed form
+    (stick, or slide along the invariant direction) and gives the solved law's impulse, under both laws; a contact
+    that slips is refused there (NaN and SOLVER_FAILED), never answered wrongly."""
+    rng = np.random.default_rng(7)
+    cases = []
+    for _ in range(BATCH):
+        m = rng.uniform(0.1, 5.0)
+        K = _body_K(m, rng.uniform(0.02, 1.0, 3) * m, rng.uniform(-1, 1, 4) + [1e-3, 0, 0, 0], rng.uniform(-1, 1, 3))
+        cases.append((K, np.array([0.0, 0.0, -rng.uniform(0.05, 3.0)]), rng.uniform(0.0, 1.5), rng.uniform(0, 1)))
+    K, u0, mu, e = (np.array(x) for x in zip(*cases))
+    solved = _batch(K, u0, mu, e)
+
+    @jax.jit
+    @jax.vmap
+    def closed(K, u0, mu, e):
+        return tuple(bd.impulse_3d(K, u0, mu, e, law, from_rest=True) for law in ("poisson", "stronge"))
+
+    for law, ref in zip(closed(K, u0, mu, e), solved):
+        scale = np.abs(ref.P).max(axis=1, keepdims=True)
+        np.testing.assert_allclose(np.asarray(law.P), ref.P, rtol=0, atol=1e-10 * scale.max())
+        assert not np.asarray(law.flags).any()
+    sticks = np.asarray(solved[0].sticks)
+    assert 0 < sticks.sum() < BATCH  # both regimes: stick, and sliding along the invariant direction
+    slipping = bd.impulse_3d(K[0], np.array([0.3, 0.0, -1.0]), 0.5, 0.5, from_rest=True)
+    assert np.isnan(np.asarray(slipping.P)).all() and int(slipping.flags) & bd.Flag.SOLVER_FAILED

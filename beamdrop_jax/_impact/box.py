@@ -176,13 +176,14 @@ def rigid_vertex_impact(r, mass, inertia_world, velocity, spin, friction, restit
                           jnp.asarray(False))
 
 
-def _vertex_impact(r, mass, inverse_inertia, velocity, spin, friction, restitution, law, attitude, tied):
+def _vertex_impact(r, mass, inverse_inertia, velocity, spin, friction, restitution, law, attitude, tied,
+                   from_rest: bool = False):
     velocity, spin = jnp.asarray(velocity), jnp.asarray(spin)
     if velocity.shape != (3,) or spin.shape != (3,):
         raise ValueError(f"velocity and spin must be 3-vectors (x, y, z) in the ground frame (m/s, rad/s); got "
                          f"shapes {velocity.shape} and {spin.shape} (for many drops, jax.vmap)")
     K, u0 = _approach(r, mass, inverse_inertia, velocity, spin)
-    impact = impulse_3d(K, u0, friction, restitution, law=law)
+    impact = impulse_3d(K, u0, friction, restitution, law=law, from_rest=from_rest)
     P, dV, dOmega = _jumps(r, mass, inverse_inertia, impact.P)
     return BoxImpact(impact=impact, r=r, attitude=attitude, K=K, u0=u0, P=P, dV=dV, dOmega=dOmega, tied=tied,
                      flags=impact.flags)
@@ -195,13 +196,14 @@ def _box_state(orientation, tilt, width, height, depth, inertia):
 
 
 def box_impact(mass, width, height, depth, inertia, orientation, tilt, velocity, spin, friction, restitution,
-               law: str = "poisson") -> BoxImpact:
+               law: str = "poisson", *, from_rest: bool = False) -> BoxImpact:
     """Impact of the lowest vertex of a box housing (DESIGN.md section 7, single-vertex strikes).
 
     **Arguments:** `mass` (kg); `width`, `height`, `depth` (m, along e1, e2, e3); `inertia`: principal moments
     (I1, I2, I3) about e1, e2, e3 through G (kg m^2), or None for a uniform box (`box_inertia`); `orientation` and
     `tilt` (rad, `box_attitude`); `velocity` (vx, vy, vz) of G (m/s, vy < 0 falling) and `spin` (wx, wy, wz)
-    (rad/s, ground frame) just before; `friction`, `restitution`, `law` as in `impulse_3d`.
+    (rad/s, ground frame) just before; `friction`, `restitution`, `law` and `from_rest` (no spin, no horizontal
+    velocity: the law's closed form) as in `impulse_3d`.
 
     **Returns:** a `BoxImpact`. At tilt = 0 (or any attitude with a level body axis) the box lands on an edge or a
     face: `tied` is set, and the law acts at the edge's midpoint or the face's centre. By symmetry that is exact
@@ -219,7 +221,8 @@ def box_impact(mass, width, height, depth, inertia, orientation, tilt, velocity,
                          f"{inertia.shape}")
     require(inertia, "box_impact inertia", lo=0.0, lo_open=True, unit="kg m^2")
     R, hit, inverse_inertia = _box_state(orientation, tilt, width, height, depth, inertia)
-    out = _vertex_impact(hit.r, mass, inverse_inertia, velocity, spin, friction, restitution, law, R, hit.tied)
+    out = _vertex_impact(hit.r, mass, inverse_inertia, velocity, spin, friction, restitution, law, R, hit.tied,
+                         from_rest)
     return eqx.tree_at(lambda b: b.flags, out, combine(out.flags, flag_if(
         _asymmetric(R, velocity, spin), Flag.FLAT_LANDING_WITH_MOTION)))
 

@@ -567,7 +567,8 @@ def _check_eagerly(K, u0, mu, e):
                          "positive definite 3 x 3 matrix in the frame (t1, t2, n), 1/kg")
 
 
-def impulse_3d(K: Float[Array, "3 3"], u0: Float[Array, "3"], friction, restitution, law: str = "poisson") -> Impact3D:
+def impulse_3d(K: Float[Array, "3 3"], u0: Float[Array, "3"], friction, restitution, law: str = "poisson", *,
+               from_rest: bool = False) -> Impact3D:
     """Impulse of a frictional impact at one vertex in 3D (Darboux-Keller; the method is in this module's
     docstring).
 
@@ -578,6 +579,9 @@ def impulse_3d(K: Float[Array, "3 3"], u0: Float[Array, "3"], friction, restitut
     - `friction`: Coulomb coefficient mu >= 0. `restitution`: e in [0, 1].
     - `law`: `"poisson"` (default; the normal impulse ends at (1 + e) p_c, p_c where u_n = 0) or `"stronge"`
       (restitution work = -e^2 times the compression work; the work of the normal force is the integral of u_n dp).
+    - `from_rest` (static): the contact has no slip at first (u0_t1 = u0_t2 = 0, a drop from rest): the law is then
+      one straight piece (stick, or slide along the invariant direction) in closed form, with no solve. A contact
+      that does slip gets NaN and `Flag.SOLVER_FAILED`.
 
     **Returns:** an `Impact3D`. With u0_n >= 0 the contact separates: P = 0 and `Flag.SEPARATING_CONTACT` is set.
     With K decoupled from t2 and u0_t2 = 0 the result is `routh_impulse`'s with B = the (t1, n) block of K.
@@ -598,11 +602,14 @@ def impulse_3d(K: Float[Array, "3 3"], u0: Float[Array, "3"], friction, restitut
     elif K.shape != (3, 3) or u0.shape != (3,):
         raise ValueError(f"K must have shape (3, 3) and u0 shape (3,); got {K.shape} and {u0.shape} (for many "
                          "contacts, jax.vmap impulse_3d)")
-    return _impulse_3d(K, u0, mu, e, jnp.asarray(law == "stronge"))
+    return _impulse_3d(K, u0, mu, e, jnp.asarray(law == "stronge"), from_rest=bool(from_rest))
 
 
-@jit  # one compiled program for both laws
-def _impulse_3d(K, u0, mu, e, stronge) -> Impact3D:
+@functools.partial(jit, static_argnames=("from_rest",))  # one compiled program for both laws
+def _impulse_3d(K, u0, mu, e, stronge, from_rest: bool = False) -> Impact3D:
+    """`impulse_3d` on arrays. `from_rest` (static): the caller knows u0_t = 0, so slip is stopped from the start
+    and the law is the straight piece alone (`_after_stop`; no solve); a contact that slips gets NaN and
+    `Flag.SOLVER_FAILED`."""
     dtype = K.dtype
     tol = _TOL if dtype == jnp.float64 else 1e-6
     separating = u0[2] >= 0
@@ -618,10 +625,15 @@ def _impulse_3d(K, u0, mu, e, stronge) -> Impact3D:
     Kh, uh = K_ / k, u0_ / V
     c = _Contact(A=Kh[:2, :2], b=Kh[:2, 2], Knn=Kh[2, 2], u0n=uh[2], mu=mu_, log_stop=_log_stop(dtype))
     # Slip below the stop threshold from the start stops at p = 0 (the first segment sees to it).
-    v, status = _walk(_pack(c), e_, stronge, jnp.concatenate([jnp.zeros(4, dtype), uh[:2]]), tol)
-    flag = status[:5] > 0
-    walk = _Walk(z=v[:6], compressed=flag[0], p_c=v[6], W_c=v[7], stopped=flag[1], aligned=flag[2], done=flag[3],
-                 failed=flag[4], steps=status[5].astype(jnp.int32))
+    z0 = jnp.concatenate([jnp.zeros(4, dtype), uh[:2]])
+    if from_rest:
+        walk = eqx.tree_at(lambda w: (w.stopped, w.failed), _start(z0, dtype),
+                           (jnp.array(True), jnp.any(u0_[:2] != 0)))
+    else:
+        v, status = _walk(_pack(c), e_, stronge, z0, tol)
+        flag = status[:5] > 0
+        walk = _Walk(z=v[:6], compressed=flag[0], p_c=v[6], W_c=v[7], stopped=flag[1], aligned=flag[2],
+                     done=flag[3], failed=flag[4], steps=status[5].astype(jnp.int32))
     p_lin, Pt_lin, p_c_lin, holds = _after_stop(c, e_, stronge, walk)
     straight = walk.stopped | walk.aligned
     p_f = jnp.where(straight, p_lin, walk.z[0])

@@ -129,7 +129,7 @@ def edge_weight(scene: Scene, hit: BoxImpact):
 def first_jumps(scene: Scene, numerics: Numerics, plane_jumps):
     """The first impact's rigid-motion inputs (dvA, dvB, dvR) and the box's impact (None for a plane section):
     `drop_jumps`, and under `"auto"` a box's blended with its edge's as one contact (`edge_weight`)."""
-    jumps, box = drop_jumps(scene, plane_jumps, numerics.law)
+    jumps, box = drop_jumps(scene, plane_jumps, numerics.law, numerics.from_rest)
     if box is not None and scene.contact.model == "auto" and numerics.max_impacts == 1:
         w_edge = edge_weight(scene, box)
         plane = jnp.concatenate([plane_jumps, jnp.zeros_like(jumps[:1])])
@@ -142,7 +142,7 @@ def box_compliant_weight(scene: Scene, numerics: Numerics, plane_weight):
     (`edge_weight`), the plane section's (`plane_weight`); where the lowest vertex strikes alone, 1 if other
     vertices are level with it (an edge or a face out of the plane), else the smoothstep in the next of the other
     six vertices' strike times, as the plane's."""
-    hit = box_housing_impact(scene, numerics.law)
+    hit = box_housing_impact(scene, numerics.law, numerics.from_rest)
     w_edge = edge_weight(scene, hit)
     tau = scene.contact.duration
     others = jnp.where(hit.tied & (scene.drop.tilt != 0), 1.0, _smoothstep(box_strike_times(scene, hit)[1], tau))

@@ -45,6 +45,10 @@ class Numerics(eqx.Module):
     - `max_impacts`: impacts followed (1: the first corner impact only, the thesis's model; more: the housing
       flies freely after each impact and clatters onto the next corner, closed form only). `rest_speed` (m/s):
       a next impact approaching slower than this ends the sequence.
+    - `from_rest`: every drop starts from rest (no spin, no horizontal speed), so a box's vertex has no slip when it
+      strikes, and the 3D rigid law takes its closed form (stick, or slide along the invariant direction: no
+      diffrax solve; 15 times faster Monte-Carlo on a box). `montecarlo` sets it where its drops are from rest; a
+      drop that is not gets NaN peaks and `Flag.SOLVER_FAILED`.
     """
 
     method: str = eqx.field(static=True, default="closed_form")
@@ -68,6 +72,7 @@ class Numerics(eqx.Module):
     max_impacts: int = eqx.field(static=True, default=1)
     rest_speed: float = eqx.field(static=True, default=0.02)
     frequency_growth: int | None = eqx.field(static=True, default=None)
+    from_rest: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
         def bad(field, value, valid):

@@ -272,18 +272,18 @@ def _build_plate(plate: Plate, duration, numerics: Numerics, n_angles: int, symm
     return fields, x, y, t, combine(plate.flags(), flag_if(S.failed, Flag.SOLVER_FAILED))
 
 
-def _drop_jumps(scene: Scene, law: str):
+def _drop_jumps(scene: Scene, law: str, from_rest: bool = False):
     """Rigid-motion inputs (dvA, dvB, dvR) of a single-impact drop (a tilted box's from its 3D impact) and its
     `Flag` mask (scene and impact)."""
-    motion, _, _, flags = drop_motion(scene, Numerics(law=law))
+    motion, _, _, flags = drop_motion(scene, Numerics(law=law, from_rest=from_rest))
     return motion.first_jumps(), combine(scene_flags(scene), flags)
 
 
 # `jax.jit` rather than `eqx.filter_jit` for these two, called once per chunk: every leaf is an array (or the
 # static `axes`), and its dispatch took 76 us against 202 us on the 2-core development machine.
-@functools.partial(jit, static_argnums=(1, 2))
-def _batch_jumps(samples: Scene, axes, law: str):
-    return jax.vmap(lambda scene: _drop_jumps(scene, law), in_axes=(axes,))(samples)
+@functools.partial(jit, static_argnums=(1, 2, 3))
+def _batch_jumps(samples: Scene, axes, law: str, from_rest: bool):
+    return jax.vmap(lambda scene: _drop_jumps(scene, law, from_rest), in_axes=(axes,))(samples)
 
 
 @functools.partial(jit, static_argnums=(3,))
@@ -293,13 +293,14 @@ def _batch_response(table: "SuperpositionTable", board: Board, durations, batche
     return (*values, flags)
 
 
-def table_peaks(table: SuperpositionTable, samples: Scene, axes):
+def table_peaks(table: SuperpositionTable, samples: Scene, axes, from_rest: bool = False):
     """(stress, strain, deflection, flags), each (n,), of the sampled drops `samples` (fields with a leading axis n
     where `axes` says 0) of the table's board.
 
     Two compiled steps, impacts then table: XLA's CPU fusion recomputes a value inside every fused loop that reads
-    it, and in one program the impact's arithmetic was recomputed for each output (measured 2x slower)."""
-    jumps, flags = _batch_jumps(samples, axes, table.law)
+    it, and in one program the impact's arithmetic was recomputed for each output (measured 2x slower).
+    `from_rest` (static): every drop starts from rest (`Numerics.from_rest`)."""
+    jumps, flags = _batch_jumps(samples, axes, table.law, from_rest)
     flags = combine(flags, table.flags)
     batched = axes.contact.duration is not None
     return _batch_response(table, samples.board, samples.contact.duration, batched, jumps, flags)

@@ -8,6 +8,7 @@ of them.
 """
 
 import collections
+import dataclasses
 import math
 
 import equinox as eqx
@@ -446,6 +447,9 @@ def montecarlo(
     if superpose and cannot:
         raise ValueError(f"montecarlo(superpose=True) needs one pulse for every drop, but {cannot}")
     superpose = cannot is None if superpose is None else bool(superpose)
+    # Drops from rest: a box's 3D law in closed form (`Numerics.from_rest`).
+    from_rest = bool(scene.housing.is_box and not np.any(np.asarray(samples.drop.spin))
+                     and not np.any(np.asarray(samples.drop.horizontal_speed)))
     devices = jax.local_devices() if devices is None else list(devices)
     n_dev = len(devices)
     if batch_size is not None and not (isinstance(batch_size, (int, np.integer)) and batch_size >= 1):
@@ -455,9 +459,10 @@ def montecarlo(
         table = superposition_table(scene, numerics, durations=durations)
         batch = min(n, 65536) if batch_size is None else int(batch_size)
         inner = n_dev
-        evaluate = lambda chunk, axes: table_peaks(table, chunk, axes)  # noqa: E731
+        evaluate = lambda chunk, axes: table_peaks(table, chunk, axes, from_rest)  # noqa: E731
     else:
         numerics = montecarlo_numerics(scene, distribution) if numerics is None else numerics
+        numerics = dataclasses.replace(numerics, from_rest=numerics.from_rest or from_rest)
         # Grids live only `inner_batch` drops at a time, so a chunk is memory-light: large chunks amortise the
         # per-chunk transfer and dispatch.
         batch = min(n, 16384) if batch_size is None else int(batch_size)
