@@ -317,9 +317,9 @@ def plate_bench(repeats: int = 5, n_drops: int = 1 << 20) -> dict:
 def box_bench(repeats: int = 3, n_drops: int = 4096) -> dict:
     """Box housings against plane sections, each pair timed in the same run (median wall times after compiling):
     a whole superposed `montecarlo` of the default beam in a 60 mm deep box over attitudes uniform on the rotation
-    group (`DropDistribution.rotations()`: drops from rest, each one's 3D law in closed form) against the plane section over
-    uniform orientations (`n_drops` each); one tilted `simulate` of the `phone` scene (a plate on eight screws)
-    against the same plate at tilt 0 (the plane section's impact)."""
+    group (`DropDistribution.rotations()`: drops from rest, each one's 3D law in closed form) against the plane
+    section over uniform orientations (`n_drops` each); one tilted `simulate` of the `phone` scene (a plate on
+    eight screws) against the same plate at tilt 0 (the plane section's impact)."""
     key = jax.random.PRNGKey(2026)
     beam = _rigid(Scene.default())
     box = beam.replace(**{"housing.depth": 0.06})
