@@ -190,6 +190,8 @@ def test_scene_files_and_errors(tmp_path, beam_box):
     tilted = scene.replace(**{"drop.tilt": 0.3})
     with pytest.raises(ValueError, match="max_impacts"):
         bd.simulate(tilted, bd.Numerics(max_impacts=2))
+    with pytest.raises(ValueError, match="from_rest = True with Drop.spin"):
+        bd.simulate(tilted.replace(**{"drop.spin": 3.0}), bd.Numerics(from_rest=True))
     # Under jit the same drop is flagged, never a silent number.
     res = jax.jit(lambda s: bd.simulate(s, bd.Numerics(max_impacts=2)))(tilted)
     assert int(res.flags) & bd.Flag.OUT_OF_PLANE and np.isnan(float(res.peak.stress))

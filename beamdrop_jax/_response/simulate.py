@@ -171,6 +171,18 @@ def _raise_if_out_of_plane(scene: Scene, numerics: Numerics) -> None:
                          "follows the plane section only; valid: max_impacts = 1 for a tilted box, or tilt = 0")
 
 
+def _raise_if_not_from_rest(scene: Scene, numerics: Numerics) -> None:
+    """`Numerics.from_rest` asked of a drop with spin or horizontal speed (NaN and `Flag.SOLVER_FAILED` under jit)."""
+    if not (numerics.from_rest and scene.housing.is_box and is_concrete(scene.drop.spin, scene.drop.horizontal_speed)):
+        return
+    for name in ("spin", "horizontal_speed"):
+        value = np.asarray(getattr(scene.drop, name))
+        if np.any(value != 0):
+            raise ValueError(f"Numerics.from_rest = True with Drop.{name} = {float(np.max(np.abs(value))):g}: the "
+                             "closed-form 3D law holds for drops from rest only; valid: Drop.spin = 0 and "
+                             "Drop.horizontal_speed = 0, or Numerics.from_rest = False")
+
+
 def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Response:
     """Simulate one drop: the housing's corner impact (and with `Numerics(max_impacts=K)` the clattering impacts
     after it), the board's support jumps, its vibration, and the peak bending stress, strain and deflection, where
@@ -189,6 +201,7 @@ def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Res
                          'window itself; valid: max_impacts = 1 with "compliant", or model "rigid" or "auto" with '
                          "max_impacts > 1")
     _raise_if_out_of_plane(scene, numerics)
+    _raise_if_not_from_rest(scene, numerics)
     kind = _landing_kind(scene, numerics)
     response = _simulate_jit(scene, numerics, points, landing=kind)
     if kind == "rigid" and scene.contact.model == "auto" and numerics.max_impacts == 1:
