@@ -447,9 +447,7 @@ def montecarlo(
     if superpose and cannot:
         raise ValueError(f"montecarlo(superpose=True) needs one pulse for every drop, but {cannot}")
     superpose = cannot is None if superpose is None else bool(superpose)
-    # Drops from rest: a box's 3D law in closed form (`Numerics.from_rest`).
-    from_rest = bool(scene.housing.is_box and not np.any(np.asarray(samples.drop.spin))
-                     and not np.any(np.asarray(samples.drop.horizontal_speed)))
+    from_rest = _from_rest(scene, samples)
     devices = jax.local_devices() if devices is None else list(devices)
     n_dev = len(devices)
     if batch_size is not None and not (isinstance(batch_size, (int, np.integer)) and batch_size >= 1):
@@ -517,6 +515,12 @@ LANDING_BATCH = 8
 """Near-flat drops solved at once on the compliant path (each is two diffrax solves)."""
 
 
+def _from_rest(scene: Scene, samples: Scene) -> bool:
+    """Whether every sampled drop of a box starts from rest: its 3D law in closed form (`Numerics.from_rest`)."""
+    return bool(scene.housing.is_box and not np.any(np.asarray(samples.drop.spin))
+                and not np.any(np.asarray(samples.drop.horizontal_speed)))
+
+
 LANDING_SECONDS = 0.5
 """Measured cost of a near-flat drop on the compliant path, s (2 cores; `beamdrop bench --landings`)."""
 
@@ -528,7 +532,7 @@ def _landings(scene, samples, axes, outputs, numerics, progress, max_landings):
     n = outputs[0].shape[0]
     if scene.contact.model == "rigid" or numerics.max_impacts > 1:
         return np.zeros(n)
-    weight = np.asarray(_weights(samples, axes))
+    weight = np.asarray(_weights(samples, axes, _from_rest(scene, samples)))
     band = np.flatnonzero(weight > 0)
     if band.size > max_landings:
         raise ValueError(
@@ -565,13 +569,13 @@ def landing_weights(scene: Scene, n: int, key, distribution: "DropDistribution |
     draws them: > 0 marks the near-flat drops that take the compliant path."""
     distribution = DropDistribution() if distribution is None else distribution
     samples = distribution.sample(scene, n, key)
-    return _weights(samples, sample_axes(samples, scene))
+    return _weights(samples, sample_axes(samples, scene), _from_rest(scene, samples))
 
 
 @filter_jit
-def _weights(samples, axes):
+def _weights(samples, axes, from_rest: bool = False):
     def one(s):
-        return compliant_weight(s, Numerics(), housing_impact(s))
+        return compliant_weight(s, Numerics(from_rest=from_rest), housing_impact(s))
 
     return jax.vmap(one, in_axes=(axes,))(samples)
 
