@@ -97,7 +97,7 @@ def _peer_rows(add, scene, drops, axes, samples, tiled, peer_modes, peer_seconds
 
     n_scipy = min(n, 1 if tiny else 8 if quick else 32)
     sub = jax.tree_util.tree_map(lambda v, a: v if a is None else v[:n_scipy], drops, axes)
-    jumps, _ = _batch_jumps(sub, axes, "poisson")
+    jumps, _ = _batch_jumps(sub, axes, "poisson", False)
     for method in ("RK45", "Radau"):
         t0 = time.perf_counter()
         vals = [scipy_peak_stress(scene, jumps[i], method)[0] for i in range(n_scipy)]
