@@ -50,6 +50,10 @@ import jax  # noqa: E402
 
 # Accuracy claims are made in float64; tests that exercise float32 use `jax.enable_x64(False)` locally.
 jax.config.update("jax_enable_x64", True)
+# Synchronous CPU dispatch in the test workers: with asynchronous dispatch (jaxlib 0.10.2, 2 cores) a worker hung for
+# good in `block_until_ready` on a buffer that never became ready, every XLA thread idle (3 of 7 fresh-clone runs;
+# stacks taken with gdb). Set before the first computation, which creates the CPU client.
+jax.config.update("jax_cpu_enable_async_dispatch", False)
 
 # The longest tests (30 s to 100 s each on 2 cores, mostly compiling) start first, so that the two test workers
 # share them instead of one finishing the run alone.
