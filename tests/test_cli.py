@@ -699,6 +699,27 @@ def test_montecarlo_varies_heights_orientations_and_durations_and_says_so(tmp_pa
                                 "the scene")
 
 
+def test_montecarlo_face_bias_and_the_rigid_flat_landing_it_cannot_draw(tmp_path, capsys):
+    import beamdrop_jax as bd
+
+    assert main(["montecarlo", "-n", "400", "--n-modes", "4", "--contact-model", "rigid", "--allowable-microstrain",
+                 "2500", "--face-bias", "0.5:1", "--no-plots", "--json", "--out", str(tmp_path)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["varied"].startswith("orientation: 0.5 of the drops near a face (0, 90, 180, 270 deg plus a normal "
+                                       "deviation of 1 deg)")
+    table = np.genfromtxt(tmp_path / "montecarlo-drops.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    off = np.abs(np.angle(np.exp(4j * np.radians(table["orientation_deg"])))) / 4
+    assert 0.45 < np.mean(off < np.radians(4)) < 0.62  # 0.5 near a face + 0.5 * 32/360 by chance
+    # Drawn drops near a face strike one corner first under the rigid law; the exact flat landing is reported apart.
+    scene = bd.Scene.default()
+    scene = type(scene)(scene.housing, scene.board, scene.placement, scene.drop, scene.contact.with_model("rigid"))
+    flat = bd.simulate(scene.replace(**{"drop.orientation": 0.0}))
+    np.testing.assert_allclose(report["flat_landing_peak_strain_microstrain"], float(flat.peak.strain) * 1e6,
+                               rtol=1e-9)
+    assert report["flat_landing_peak_strain_microstrain"] > 1.5 * report["peak_strain_max_microstrain"]
+    assert any(note.startswith("a drop exactly on a face gives up to") for note in report["notes"])
+
+
 def test_montecarlo_figure_keeps_radial_labels_off_the_curve_and_draws_the_limit():
     import jax
     import matplotlib

@@ -259,8 +259,30 @@ def test_exceedance_with_known_answer(superpose):
     assert hi - lo < 0.04
 
 
+def test_face_biased_orientations_follow_their_mixture():
+    # A share s near a face (k pi/2 + N(0, spread)), the rest uniform: the fraction within r of a face is
+    # s P(|N| < r / spread) + (1 - s) 8 r / (2 pi) for r < pi/4.
+    share, spread, n = 0.4, math.radians(2.0), 40000
+    dist = bd.DropDistribution.faces(share, spread)
+    th = np.asarray(dist.sample(bd.Scene.default(), n, jax.random.PRNGKey(3)).drop.orientation)
+    assert th.shape == (n,) and th.min() >= 0 and th.max() < 2 * math.pi
+    off = np.abs(np.angle(np.exp(4j * th))) / 4  # distance to the nearest face
+    for k in (1.0, 4.0, 10.0):
+        r = k * spread
+        expected = share * math.erf(k / math.sqrt(2)) + (1 - share) * 8 * r / (2 * math.pi)
+        assert abs(np.mean(off < r) - expected) < 4 * math.sqrt(expected * (1 - expected) / n), k
+    faces = np.round(th[off < 4 * spread] / (math.pi / 2)) % 4
+    np.testing.assert_allclose(np.bincount(faces.astype(int)) / faces.size, 0.25, atol=0.02)  # every face alike
+    assert "0.4 of the drops near a face" in dist.describe() and "deviation of 2 deg" in dist.describe()
+    with pytest.raises(ValueError, match="share near a face must be in"):
+        bd.DropDistribution.faces(1.5, 0.01)
+    with pytest.raises(ValueError, match="for the orientation only"):
+        bd.DropDistribution(height=("faces", 0.5, 0.01))
+
+
 def test_wilson_interval_reference_values():
     # Wilson (1927) interval for 0/10 and 5/10 at 95 %: textbook values.
+    assert bd.wilson_interval(0, 10)[0] == 0.0 and bd.wilson_interval(10, 10)[1] == 1.0  # exact, no rounding residue
     np.testing.assert_allclose(bd.wilson_interval(0, 10), (0.0, 0.27753), atol=1e-5)
     np.testing.assert_allclose(bd.wilson_interval(5, 10), (0.23659, 0.76341), atol=1e-5)
 

@@ -79,6 +79,9 @@ def _quiet_radial_labels(ax, theta, r, rmax):
     lo, hi = np.radians(ax.get_thetamin()), np.radians(ax.get_thetamax())
     centres = (bins[:-1] + bins[1:]) / 2
     inside = (centres >= lo - 1e-9) & (centres <= hi + 1e-9) if hi - lo < 2 * np.pi - 1e-9 else np.ones(72, bool)
+    # Horizontal labels along a near-horizontal ray run into each other: prefer steeper rays where there are any.
+    steep = inside & (np.abs(np.sin(centres)) > 0.5)
+    inside = steep if steep.any() else inside
     angle = centres[np.flatnonzero(inside)[np.argmin(reach[inside])]]
     near = np.abs(np.angle(np.exp(1j * (theta - angle)))) < np.radians(12)
     band = (r[near].min() - 0.07 * rmax, r[near].max() + 0.07 * rmax) if np.any(near) else (np.inf, -np.inf)
@@ -89,11 +92,13 @@ def _quiet_radial_labels(ax, theta, r, rmax):
 
 
 def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None, distribution=None,
-                    varied: str | None = None):
+                    varied: str | None = None, flat: dict | None = None):
     """Left: peak against drop orientation (polar; the radius is the peak), coloured by the other field that varies
     (height or contact duration) where one does, with the limit's circle; against the varied field when the
     orientation is fixed. Right: exceedance curve P(peak > s) with the limit marked. The title says what varied:
-    `varied` (text), or the `distribution` (`DropDistribution`) the drops came from."""
+    `varied` (text), or the `distribution` (`DropDistribution`) the drops came from; the polar axis spans the
+    distribution's orientations (else the drops'). `flat` ({orientation rad: peak in SI}) marks drops exactly on a
+    face, which random drops never draw under the rigid law (a hair off flat, one corner strikes first)."""
     import matplotlib.pyplot as plt
 
     names = {"orientation": ("orientation", "deg", 180 / np.pi), "height": ("drop height", "m", 1.0),
@@ -129,9 +134,17 @@ def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None, 
     if colour_name:
         what, cunit, _ = names[colour_name]
         fig.colorbar(dots, ax=ax1, pad=0.12 if polar else 0.02, shrink=0.8, label=f"{what} ({cunit})")
-    top = max(float(values.max()) if values.size else 1.0, 0.0 if limit is None else limit * scale) * 1.08
+    flat = {} if flat is None else {float(k): float(v) * scale for k, v in flat.items()}
+    top = max([float(values.max()) if values.size else 1.0, 0.0 if limit is None else limit * scale,
+               *flat.values()]) * 1.08
     if polar:
-        lo, hi = np.degrees(x.min()), np.degrees(x.max())
+        spec = None if distribution is None else distribution.orientation
+        if spec is not None and spec[0] == "uniform":
+            lo, hi = np.degrees(spec[1]), np.degrees(spec[2])
+        elif spec is not None:
+            lo, hi = 0.0, 360.0
+        else:
+            lo, hi = np.degrees(x.min()), np.degrees(x.max())
         if hi - lo < 359.0:
             ax1.set_thetamin(lo)
             ax1.set_thetamax(hi)
@@ -140,9 +153,14 @@ def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None, 
                 0.0, 2 * np.pi, 361)
             ax1.plot(circle, np.full(circle.shape, limit * scale), "--", color="tab:red", lw=1.5,
                      label=f"limit {limit * scale:.4g} {unit}")
-            ax1.legend(loc="lower left", bbox_to_anchor=(-0.15, -0.12), fontsize=8)
+        if flat:
+            ax1.plot(list(flat), list(flat.values()), "D", color="tab:orange", mec="k", ms=7, zorder=5,
+                     label=f"exactly on a face: up to {max(flat.values()):.4g} {unit}\n(never drawn: a hair off "
+                           "flat, one corner strikes first)")
+        if limit is not None or flat:
+            ax1.legend(loc="upper left", bbox_to_anchor=(-0.18, -0.04), fontsize=8)
         ax1.tick_params(axis="y", labelsize=7, labelcolor="0.3")
-        _quiet_radial_labels(ax1, x, values, top)
+        _quiet_radial_labels(ax1, np.r_[x, list(flat)], np.r_[values, list(flat.values())], top)
         ax1.set_title(f"peak {quantity} ({unit}, the radius) against drop orientation (deg)", pad=18, fontsize=10)
     else:
         if limit is not None:

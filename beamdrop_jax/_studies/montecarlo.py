@@ -62,12 +62,18 @@ _SHOWN = {
 def _check_spec(name, spec):
     if spec is None:
         return
-    if not (isinstance(spec, tuple) and len(spec) == 3 and spec[0] in ("uniform", "lognormal", "cosine")):
+    if not (isinstance(spec, tuple) and len(spec) == 3 and spec[0] in ("uniform", "lognormal", "cosine", "faces")):
         raise ValueError(
             f"DropDistribution.{name} = {spec!r}; valid: None (the scene's value), ('uniform', low, high), "
-            "('lognormal', median, sigma) or, for an angle, ('cosine', low, high)"
+            "('lognormal', median, sigma), for an angle ('cosine', low, high), or for the orientation ('faces', "
+            "share, spread)"
         )
     kind, a, b = spec
+    if kind == "faces" and name != "orientation":
+        raise ValueError(f"DropDistribution.{name} = {spec!r}: ('faces', share, spread) is for the orientation only")
+    if kind == "faces" and not (0.0 <= a <= 1.0 and 0.0 <= b <= math.pi / 4):
+        raise ValueError(f"DropDistribution.orientation = {spec!r}: the share near a face must be in [0, 1] and the "
+                         f"spread in [0, pi/4] rad, got share {a}, spread {b}")
     if kind == "uniform" and not (math.isfinite(a) and math.isfinite(b) and a <= b):
         raise ValueError(f"DropDistribution.{name}: uniform bounds must be finite with low <= high, got ({a}, {b})")
     if kind == "cosine" and not (-math.pi / 2 <= a <= b <= math.pi / 2):
@@ -80,7 +86,10 @@ def _check_spec(name, spec):
 class DropDistribution(eqx.Module):
     """Which scene fields vary and how: each is None (the scene's value), `("uniform", low, high)` or
     `("lognormal", median, sigma)`, or for an angle `("cosine", low, high)` (density proportional to its cosine:
-    its sine uniform). Default: orientation uniform on [0, 2 pi), everything else as in the scene. Angles in rad,
+    its sine uniform). `orientation=("faces", share, spread)` biases drops toward flat landings, as flat devices
+    fall: a `share` of the drops lands near one of the four faces (orientation k pi/2, k uniform, plus a normal
+    deviation of standard deviation `spread`, rad), the rest uniformly on [0, 2 pi); `DropDistribution.faces`
+    builds it. Default: orientation uniform on [0, 2 pi), everything else as in the scene. Angles in rad,
     heights in m, spin in rad/s, speeds in m/s, durations in s. Use `DropDistribution.uniform` for (low, high)
     shorthand, and `DropDistribution.rotations()` for a box landing in a uniformly random attitude."""
 
@@ -101,6 +110,13 @@ class DropDistribution(eqx.Module):
         the vertical does not change a drop without horizontal speed. `others` set the other fields."""
         return cls(orientation=("uniform", 0.0, 2 * math.pi), tilt=("cosine", -math.pi / 2, math.pi / 2), **others)
 
+    @classmethod
+    def faces(cls, share: float, spread: float, **others) -> "DropDistribution":
+        """Face-biased orientations: a `share` in [0, 1] of the drops near a face (k pi/2 plus a normal deviation of
+        standard deviation `spread` rad, in [0, pi/4]), the rest uniform over the circle. `others` set the other
+        fields."""
+        return cls(orientation=("faces", float(share), float(spread)), **others)
+
     def __check_init__(self):
         for name in _FIELDS:
             _check_spec(name, getattr(self, name))
@@ -119,6 +135,9 @@ class DropDistribution(eqx.Module):
                 parts.append(f"{what} uniform on [{a * scale:.4g}, {b * scale:.4g}]{unit}")
             elif kind == "cosine":
                 parts.append(f"{what} with sine uniform, on [{a * scale:.4g}, {b * scale:.4g}]{unit}")
+            elif kind == "faces":
+                parts.append(f"{what}: {a:.3g} of the drops near a face (0, 90, 180, 270 deg plus a normal deviation "
+                             f"of {b * scale:.3g}{unit}), the rest uniform on [0, 360]{unit}")
             else:
                 parts.append(f"{what} lognormal, median {a * scale:.4g}{unit}, sigma {b:.4g}")
         return "; ".join(parts + ["every other field as in the scene"])
@@ -139,6 +158,13 @@ class DropDistribution(eqx.Module):
             elif kind == "cosine":
                 values = jnp.arcsin(jax.random.uniform(k, (n,), minval=math.sin(a), maxval=math.sin(b),
                                                        dtype=float_dtype()))
+            elif kind == "faces":
+                k_near, k_face, k_dev, k_any = jax.random.split(k, 4)
+                near = jax.random.uniform(k_near, (n,), dtype=float_dtype()) < a
+                face = jax.random.randint(k_face, (n,), 0, 4).astype(float_dtype()) * (math.pi / 2)
+                deviation = b * jax.random.normal(k_dev, (n,), dtype=float_dtype())
+                anywhere = jax.random.uniform(k_any, (n,), minval=0.0, maxval=2 * math.pi, dtype=float_dtype())
+                values = jnp.mod(jnp.where(near, face + deviation, anywhere), 2 * math.pi)
             else:
                 values = a * jnp.exp(b * jax.random.normal(k, (n,), dtype=float_dtype()))
             out = out.replace(check_ranges=False, **{path: values})
@@ -161,7 +187,8 @@ def wilson_interval(k, n, confidence=0.95) -> tuple[float, float]:
     p = k / n
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    # At k = 0 (k = n) the bound is exactly 0 (1); the formula leaves a rounding residue such as 1e-19.
+    return (0.0 if k == 0 else max(0.0, centre - half), 1.0 if k == n else min(1.0, centre + half))
 
 
 class MonteCarloResult(eqx.Module):

@@ -40,6 +40,7 @@ from ._helpers import (
     _int_at_least,
     _int_in,
     _microstrain,
+    _face_bias,
     _range,
     _region,
     _scene,
@@ -187,8 +188,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the board's strain limit in microstrain, required: no one figure holds for every board "
                         "(limits depend on the board, its parts and joints, and the strain rate), so give your part's "
                         "or supplier's")
-    p.add_argument("--orientations", type=_range("deg", -3600.0, 3600.0), default=(0.0, 360.0), metavar="LO:HI",
+    p.add_argument("--orientations", type=_range("deg", -3600.0, 3600.0), metavar="LO:HI",
                    help="drop orientations drawn uniformly on [LO, HI] deg, or one value (default 0:360)")
+    p.add_argument("--face-bias", type=_face_bias, metavar="SHARE:SPREAD",
+                   help="flat devices land near a face more often than uniformly: SHARE in [0, 1] of the drops land "
+                        "near one of the four faces (0, 90, 180, 270 deg plus a normal deviation of SPREAD deg), the "
+                        "rest uniformly over 360 deg; e.g. 0.3:2 (instead of --orientations)")
     p.add_argument("--heights", type=_range("m", 0.0, 1e3, lo_open=True), metavar="LO:HI",
                    help="drop heights drawn uniformly on [LO, HI] m, or one value (default: the scene's)")
     p.add_argument("--durations", type=_range("ms", 0.0, 100.0, lo_open=True), metavar="LO:HI",
@@ -232,6 +237,9 @@ def _parse(argv) -> argparse.Namespace:
         parser.commands[args.command].error(
             "--allowable-microstrain UE is required: the board's strain limit in microstrain (your part's or "
             "supplier's; there is no default)")
+    if getattr(args, "face_bias", None) and args.orientations is not None:
+        parser.commands[args.command].error("--face-bias draws the orientation over the whole circle: give it or "
+                                            "--orientations, not both")
     if getattr(args, "solver", None) and args.method != "diffrax":
         parser.commands[args.command].error(
             f"--solver {args.solver} needs --method diffrax (--method {args.method or 'closed_form'}"

@@ -135,6 +135,18 @@ def _range(unit, lo, hi, lo_open=False):
     return parse
 
 
+def _face_bias(text):
+    """'share:spread' -> (share in [0, 1], spread in [0, 45] deg)."""
+    parts = text.split(":")
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"{text!r}: write 'share:spread_deg', e.g. 0.3:2 (30 % of the drops within "
+                                         "a normal spread of 2 deg of a face)")
+    try:
+        return _float_in(0.0, 1.0, "(share)")(parts[0]), _float_in(0.0, 45.0, "deg")(parts[1])
+    except argparse.ArgumentTypeError as err:
+        raise argparse.ArgumentTypeError(f"{text!r}: {err} (write 'share:spread_deg', e.g. 0.3:2)") from None
+
+
 def _region(text):
     """'c1lo,c2lo,c1hi,c2hi' in mm -> ((c1lo, c2lo), (c1hi, c2hi)) in m."""
     number = _float_in(-1e4, 1e4, "mm")
