@@ -2,6 +2,7 @@
 elsewhere)."""
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -37,6 +38,37 @@ def test_montecarlo_and_optimize(tmp_path, capsys):
                  "--out", str(tmp_path)]) == 0
     assert "after objective (MPa)" in capsys.readouterr().out
     assert (tmp_path / "placement.png").exists()
+
+
+def test_placement_figure_draws_supports_drop_directions_and_a_curve_where_the_board_fills_the_housing():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import beamdrop_jax as bd
+
+    scene = bd.Scene.default()
+    scene = scene.replace(**{"board.length": 0.148})  # at angle 0, 1 mm of room along the width, 75 mm along the height
+    numerics = bd.Numerics(n_modes=4)
+    orientations = np.radians([20.0, 50.0])
+    res = bd.optimize_placement(scene, orientations, numerics=numerics, steps=2, starts=1, max_angle=0.0,
+                                progress=False)
+    c1, c2, values = bd.placement_landscape(scene, res, orientations, numerics=numerics, n=(9, 5))
+    assert c1.shape == (1,) and c2.shape == (5,) and values.shape == (1, 5)
+    np.testing.assert_allclose(c2[[0, -1]], [-0.0375, 0.0375], rtol=1e-12)  # H/2 - L/2 |sin 0|
+    fig = bd.plot_placement(scene, res, (c1, c2, values), orientations=orientations)
+    curve, board = fig.axes[0], fig.axes[-1]
+    assert not curve.collections  # a curve over c2, not a map
+    np.testing.assert_allclose(curve.lines[0].get_xdata(), c2 * 1e3)
+    assert "fills the housing's width" in curve.get_title()
+    supports = next(line for line in board.lines if line.get_label() == "supports (ends A, B)")
+    centre, angle = np.asarray(res.placement.centre), float(res.placement.angle)
+    ends = centre + np.outer([-0.074, 0.074], [math.cos(angle), math.sin(angle)])
+    np.testing.assert_allclose(np.c_[supports.get_xdata(), supports.get_ydata()], ends * 1e3, atol=1e-9)
+    arrows = [a for a in board.texts if a.arrow_patch is not None]
+    assert len(arrows) == 2
+    for arrow, theta in zip(arrows, orientations):
+        tip = np.asarray(arrow.xy)
+        np.testing.assert_allclose(tip / np.linalg.norm(tip), [-math.sin(theta), -math.cos(theta)], atol=1e-12)
 
 
 def test_bench_tiny_writes_table_and_chart(tmp_path):

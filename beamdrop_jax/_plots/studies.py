@@ -8,44 +8,94 @@ from .._studies.standards import STANDARDS
 from .common import _axes
 
 
-def _draw_housing(ax, scene, placement, **style):
+def _draw_housing(ax, scene, placement, supports: bool = False, **style):
+    """The housing's outline and the board (a line in the plane of motion, mm from G); with `supports`, where the
+    board is held: its ends A and B (a beam), or its mounts seen edge-on and its supported edges (a plate)."""
     from matplotlib.patches import Rectangle
-
 
     W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
     ax.add_patch(Rectangle((-W / 2, -H / 2), W, H, fill=False, lw=1.5, color="0.3"))
     ends = board_ends(on_host(placement), float(scene.board.length)) * 1e3
     ax.plot(ends[:, 0], ends[:, 1], **style)
+    if not supports:
+        return
+    mounts = getattr(scene.board, "mounts", None)
+    if mounts is None:  # a beam: held at its ends
+        held = np.array([0.0, 1.0])
+    else:
+        ends_held = [f for f, letter in zip((0.0, 1.0), scene.board.edges[0::2]) if letter != "F"]  # x = 0, L
+        held = np.r_[np.asarray(mounts)[:, 0] / float(scene.board.length), ends_held]
+    points = ends[0] + held[:, None] * (ends[1] - ends[0])
+    ax.plot(points[:, 0], points[:, 1], "^", color="k", ms=7, mfc="w", mew=1.5, zorder=4,
+            label="supports (ends A, B)" if mounts is None else "mounts and supported edges, seen edge-on")
 
 
-def plot_placement(scene, result, landscape, *, axes=None):
-    """Left: the objective over board-centre positions at the optimal angle, with the optimiser's path.
-    Right: the housing (body axes, mm) with the board before and after."""
+def plot_placement(scene, result, landscape, *, axes=None, orientations=None):
+    """Left: the objective over board-centre positions (c1 along the housing's width, c2 along its height, mm from
+    its centre of mass G) at the optimum's angle, with the optimiser's path; a curve over c1 where the centre has
+    no room along the height at that angle. Right: the housing with the board before and after, its supports, and
+    the drops' directions (`orientations`, rad: the downward direction at impact, in the housing's axes)."""
     import matplotlib.pyplot as plt
 
     if axes is None:
-        fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), layout="constrained")
+        fig, axes = plt.subplots(1, 2, figsize=(12, 5.4), layout="constrained")
     ax1, ax2 = axes
     fig = ax1.figure
-    c1, c2, values = landscape
-    mesh = ax1.pcolormesh(np.asarray(c1) * 1e3, np.asarray(c2) * 1e3, np.asarray(values).T / 1e6,
-                          shading="auto", cmap="viridis")
-    fig.colorbar(mesh, ax=ax1, label=f"{result.objective} peak stress over drops (MPa)")
+    c1, c2, values = (np.asarray(v) for v in landscape)
+    c1mm, c2mm, mpa = c1 * 1e3, c2 * 1e3, values / 1e6
     path = np.asarray(result.path)
-    ax1.plot(path[:, 0] * 1e3, path[:, 1] * 1e3, "w.-", lw=1, ms=3, label="optimiser path (best start)")
-    ax1.plot(path[0, 0] * 1e3, path[0, 1] * 1e3, "wo", ms=7, mfc="none")
-    ax1.plot(path[-1, 0] * 1e3, path[-1, 1] * 1e3, "r*", ms=14, label="optimum")
-    ax1.set_xlabel("board centre c1 along the width (mm)")
-    ax1.set_ylabel("board centre c2 along the height (mm)")
-    ax1.set_title(f"Objective over the centre at the optimum's angle {np.degrees(float(result.placement.angle)):.1f} "
-                  f"deg\n(the path also turns: {np.degrees(path[0, 2]):.1f} -> {np.degrees(path[-1, 2]):.1f} deg; "
-                  "drawn at its centres)", fontsize=9)
-    ax1.legend(fontsize=8, loc="lower right")
+    best = path[-1, :2] * 1e3
+    label = f"{result.objective} peak stress over drops (MPa)"
+    if 1 in mpa.shape:  # no room to move along one axis at this angle: a curve along the other
+        free = 0 if mpa.shape[1] == 1 else 1
+        grid, fixed = (c1mm, c2mm) if free == 0 else (c2mm, c1mm)
+        names = ("c1 along the housing's width", "c2 along the housing's height")
+        ax1.plot(grid, mpa.ravel(), color="tab:blue", lw=2,
+                 label=f"objective, {names[1 - free].split()[0]} = {fixed[0]:.3g} mm")
+        ax1.plot(best[free], float(result.value) / 1e6, "r*", ms=14, clip_on=False, label="optimum")
+        ax1.set_xlabel(f"board centre {names[free]} (mm from G)")
+        ax1.set_ylabel(label)
+        ax1.grid(alpha=0.3)
+        room = (f"at this angle the board fills the housing's {('height', 'width')[free]}, so its centre moves along "
+                f"the {('width', 'height')[free]} only")
+    else:
+        mesh = ax1.pcolormesh(c1mm, c2mm, mpa.T, shading="gouraud", cmap="viridis")
+        fig.colorbar(mesh, ax=ax1, label=label)
+        lines = ax1.contour(c1mm, c2mm, mpa.T, levels=8, colors="w", linewidths=0.6, alpha=0.7)
+        ax1.clabel(lines, fontsize=7, fmt="%.3g")
+        ax1.plot(path[:, 0] * 1e3, path[:, 1] * 1e3, ".-", color="tab:orange", lw=1, ms=3,
+                 label="optimiser path (best start)")
+        ax1.set_xlim(c1mm.min(), c1mm.max())  # the path may start where only another angle had room
+        ax1.set_ylim(c2mm.min(), c2mm.max())
+        ax1.plot(path[0, 0] * 1e3, path[0, 1] * 1e3, "o", color="tab:orange", ms=7, mfc="none", label="its start")
+        ax1.plot(*best, "r*", ms=14, clip_on=False, label="optimum")
+        ax1.set_xlabel("board centre c1 along the housing's width (mm from G)")
+        ax1.set_ylabel("board centre c2 along the housing's height (mm from G)")
+        room = "the area is where the centre may go at this angle"
+    span = np.array([np.ptp(c1mm), np.ptp(c2mm)])
+    on_edge = [abs(best[i] - edge) <= 0.02 * span[i] + 1e-9 for i, axis in enumerate((c1mm, c2mm))
+               for edge in (axis.min(), axis.max()) if span[i] > 0]
+    if any(on_edge):
+        room += ("; the optimum lies on its edge: the board touches the housing" +
+                 (" or the region's edge" if getattr(result, "region", None) is not None else ""))
+    ax1.set_title(f"Objective over the board's centre at the optimum's angle, "
+                  f"{np.degrees(float(result.placement.angle)):.1f} deg\n(the path turns "
+                  f"{np.degrees(path[0, 2]):.1f} -> {np.degrees(path[-1, 2]):.1f} deg; {room})", fontsize=9, wrap=True)
+    ax1.legend(fontsize=8, loc="best")
     _draw_housing(ax2, scene, scene.placement, color="tab:gray", lw=4, ls="--",
                   label=f"before: {float(result.initial_value) / 1e6:.1f} MPa")
-    _draw_housing(ax2, scene, result.placement, color="tab:red", lw=4,
+    _draw_housing(ax2, scene, result.placement, supports=True, color="tab:red", lw=4,
                   label=f"after: {float(result.value) / 1e6:.1f} MPa")
     ax2.plot(0, 0, "k+", ms=10, label="centre of mass G")
+    W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
+    if orientations is not None:
+        reach = 0.3 * max(W, H)
+        for i, theta in enumerate(np.atleast_1d(np.asarray(orientations, float))):
+            down = np.array([-np.sin(theta), -np.cos(theta)])
+            ax2.annotate("", xy=down * reach, xytext=(0, 0), zorder=3,
+                         arrowprops=dict(arrowstyle="-|>", color="tab:blue", lw=1.2, alpha=0.8))
+        ax2.plot([], [], "-", color="tab:blue", label=f"drop directions (down at impact, {np.size(orientations)} "
+                                                       "drops)")
     if getattr(result, "region", None) is not None:
         from matplotlib.patches import Rectangle
 
@@ -56,16 +106,20 @@ def plot_placement(scene, result, landscape, *, axes=None):
         ax2.plot([], [], " ", label=f"tilt kept within {np.degrees(result.max_angle):g} deg")
     ax2.set_aspect("equal")
     ax2.set_xlabel("e1: along the housing's width from G (mm)")
-    ax2.set_ylabel("e2: along its height (mm)")
-    ax2.set_title(f"Board placement, {result.objective} objective")
-    ax2.legend(fontsize=8, loc="upper right")
-    W, H = float(scene.housing.width) * 1e3, float(scene.housing.height) * 1e3
-    ax2.set_xlim(-0.6 * W, 0.6 * W)
-    ax2.set_ylim(-0.6 * H - 0.3 * H, 0.6 * H + 0.3 * H)
+    ax2.set_ylabel("e2: along its height from G (mm)")
+    ax2.set_title(f"Board placement, {result.objective} objective (the plane of motion)", fontsize=10)
+    from matplotlib.transforms import offset_copy
+
+    # Below the axis label, however short the (equal-aspect) axes is.
+    ax2.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=2, frameon=False,
+               bbox_transform=offset_copy(ax2.transAxes, fig, y=-34, units="points"))
+    reach = 0.3 * max(W, H) * 1.1 if orientations is not None else 0.0
+    ax2.set_xlim(-max(0.6 * W, reach), max(0.6 * W, reach))
+    ax2.set_ylim(-max(0.6 * H, reach), max(0.6 * H, reach))
     fig.text(0.01, 0.005, "The objective counts the support jumps normal to the board in the plane of the model: "
              "motion along the board and out of the plane are left out.", fontsize=8, color="0.2", va="bottom")
     if fig.get_layout_engine() is not None:
-        fig.get_layout_engine().set(rect=(0, 0.05, 1, 0.95))
+        fig.get_layout_engine().set(rect=(0, 0.04, 1, 0.96))
     return fig
 
 

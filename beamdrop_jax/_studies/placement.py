@@ -453,10 +453,11 @@ def _params(p: Placement):
 
 
 def placement_landscape(scene: Scene, result: PlacementResult, orientations=None, heights=None, alpha=0.9,
-                        numerics=None, margin=0.0, n=(25, 13), region=None):
+                        numerics=None, margin=0.0, n=(61, 31), region=None):
     """The objective (Pa) over board-centre positions (c1, c2) at the optimum's angle: (c1 grid, c2 grid, values
     of shape (n1, n2)) over where the centre may go (inside the housing, and the `region` box; default the
-    result's)."""
+    result's). Where the centre has almost no room along one axis (under 10 % of the other's) that axis has one
+    point, its middle."""
     numerics = Numerics(n_modes=8) if numerics is None else numerics
     if orientations is None:
         orientations = np.radians(np.linspace(15.0, 75.0, 7))
@@ -469,8 +470,9 @@ def placement_landscape(scene: Scene, result: PlacementResult, orientations=None
     box = None if region is None else np.asarray(region, float)
     lo = np.array([-R1, -R2]) if box is None else np.maximum(box[0], [-R1, -R2])
     hi = np.array([R1, R2]) if box is None else np.minimum(box[1], [R1, R2])
-    c1 = np.linspace(lo[0], hi[0], n[0])
-    c2 = np.linspace(lo[1], hi[1], n[1])
+    thin = hi - lo < 0.1 * np.max(hi - lo)
+    c1 = np.linspace(lo[0], hi[0], n[0]) if not thin[0] else np.array([(lo[0] + hi[0]) / 2])
+    c2 = np.linspace(lo[1], hi[1], n[1]) if not thin[1] else np.array([(lo[1] + hi[1]) / 2])
     C1, C2 = np.meshgrid(c1, c2, indexing="ij")
     centres = jnp.asarray(np.stack([C1.ravel(), C2.ravel()], axis=-1), float_dtype())
     config = _traced_config(result.objective, alpha, numerics)

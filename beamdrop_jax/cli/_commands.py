@@ -282,7 +282,7 @@ def cmd_optimize(args, output):
     if not args.no_plots:
         landscape = bd.placement_landscape(scene, res, orientations, args.heights, alpha=args.alpha,
                                            numerics=numerics, margin=args.margin * 1e-3, region=args.region)
-        _save(output, bd.plot_placement(scene, res, landscape), "placement.png", args)
+        _save(output, bd.plot_placement(scene, res, landscape, orientations=orientations), "placement.png", args)
 
 
 def _optimize_mounts(args, output, scene, orientations, numerics):
