@@ -743,9 +743,11 @@ def test_montecarlo_face_bias_and_the_rigid_flat_landing_it_cannot_draw(tmp_path
     off = np.abs(np.angle(np.exp(4j * np.radians(table["orientation_deg"])))) / 4
     assert 0.45 < np.mean(off < np.radians(4)) < 0.62  # 0.5 near a face + 0.5 * 32/360 by chance
     # Drawn drops near a face strike one corner first under the rigid law; the exact flat landing is reported apart.
-    scene = bd.Scene.default()
-    scene = type(scene)(scene.housing, scene.board, scene.placement, scene.drop, scene.contact.with_model("rigid"))
-    flat = bd.simulate(scene.replace(**{"drop.orientation": 0.0}))
+    scene = bd.Scene.default().replace(**{"contact.model": "rigid", "drop.orientation": 0.0})
+    assert scene.contact.model == "rigid"
+    with pytest.raises(ValueError, match="Contact.model = 'rigd' \\(did you mean 'rigid'\\?\\)"):
+        scene.replace(**{"contact.model": "rigd"})
+    flat = bd.simulate(scene)
     np.testing.assert_allclose(report["flat_landing_peak_strain_microstrain"], float(flat.peak.strain) * 1e6,
                                rtol=1e-9)
     assert report["flat_landing_peak_strain_microstrain"] > 1.5 * report["peak_strain_max_microstrain"]

@@ -126,7 +126,7 @@ class Response(eqx.Module):
             **({"peak_deflection_y_mm": p.deflection_y * 1e3} if r.is_plate else {}),
             "peak_deflection_t_ms": p.deflection_t * 1e3,
             "converged": r.converged,
-            "mode_check_relative_change": r.error_estimate,
+            "error_estimate_relative": r.error_estimate,  # modes and gauges, plus the Ritz basis on a plate
             "window_ms": r.window * 1e3,
             "flags": Flag.describe(r.flags),
         }

@@ -263,7 +263,8 @@ class Scene(eqx.Module):
         return load_scene("default")
 
     def replace(self, *, check_ranges: bool = True, **paths) -> "Scene":
-        """A copy with fields replaced by dotted path, e.g. `scene.replace(**{"drop.height": 1.0})`.
+        """A copy with fields replaced by dotted path, e.g. `scene.replace(**{"drop.height": 1.0})`, or
+        `scene.replace(**{"contact.model": "auto"})` for the landing model (a string, `Contact.model`).
 
         Values are checked as the constructors check them (type, range; the board inside the housing and below
         its buckling load), naming the path; arrays with a leading batch axis are welcome. `check_ranges=False`
@@ -271,6 +272,9 @@ class Scene(eqx.Module):
         drops are."""
         out = self
         for path, value in paths.items():
+            if path == "contact.model":
+                out = eqx.tree_at(lambda s: s.contact, out, out.contact.with_model(value))
+                continue
             cls, name = _field_at(path, self)
             valid = cls.RANGES[name][0]
             new = as_float(value, path, valid)
