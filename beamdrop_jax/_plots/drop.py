@@ -201,7 +201,14 @@ def plot_scene(scene, response=None, *, ax=None):
     ax.add_patch(Polygon(box, closed=True, fc="0.93", ec="0.25", lw=1.5, label="housing (rigid)"))
     ends = ground(board_ends(on_host(scene.placement), float(scene.board.length)))
     ax.plot(ends[:, 0], ends[:, 1], color="tab:green", lw=4, solid_capstyle="butt", label="board")
-    ax.plot(ends[:, 0], ends[:, 1], "^", color="tab:green", mec="k", ms=10, label="supports (pinned)")
+    mounts = getattr(scene.board, "mounts", None)
+    if mounts is None:  # a beam: held at its ends
+        ax.plot(ends[:, 0], ends[:, 1], "^", color="tab:green", mec="k", ms=10,
+                label=f"supports ({scene.board.ends})")
+    else:  # a plate: its mounts along the board, seen edge-on
+        along = np.asarray(mounts)[:, 0] / float(scene.board.length)
+        held = ends[0] + along[:, None] * (ends[1] - ends[0])
+        ax.plot(held[:, 0], held[:, 1], "^", color="tab:green", mec="k", ms=10, label="mounts (seen edge-on)")
     ax.annotate("A", ends[0], xytext=(-12, 6), textcoords="offset points", fontsize=11, weight="bold")
     ax.annotate("B", ends[1], xytext=(6, 6), textcoords="offset points", fontsize=11, weight="bold")
     ax.plot(*G_mm, "ko", ms=7, mfc="w", mew=2)
