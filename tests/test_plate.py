@@ -538,6 +538,16 @@ def test_plates_outside_thin_plate_theory_are_refused_or_flagged():
         bd.peak_stress(thin)
     flags = jax.jit(lambda h: bd.simulate(scene.replace(check_ranges=False, **{"board.thickness": h})).flags)
     assert int(flags(jnp.asarray(1e-6))) == bd.Flag.OUTSIDE_THEORY and int(flags(jnp.asarray(1e-3))) == 0
+    # Superposed Monte-Carlo flags it too. A flat drop's deflection grows as sqrt(height) (the rigid flat landing's
+    # jump is (1 + e) sqrt(2 g h)), so it passes the limit at h* = h0 (limit / w0)^2 from one drop (h0, w0).
+    h0, w0 = float(scene.drop.height), float(bd.simulate(scene).peak.deflection)
+    h_star = h0 * (0.25 * 0.077 / w0) ** 2
+    mc = bd.montecarlo(scene, 64, jax.random.PRNGKey(2), bd.DropDistribution(orientation=None,
+                                                                             height=("uniform", 1.0, 9.0)),
+                       progress=False)
+    h, mc_flags = np.asarray(mc.samples.drop.height), np.asarray(mc.flags)
+    assert np.all(mc_flags[h > 1.002 * h_star] == bd.Flag.OUTSIDE_THEORY) and np.all(mc_flags[h < 0.998 * h_star] == 0)
+    assert np.all(np.isnan(np.asarray(mc.peak_strain)[h > 1.002 * h_star])) and 10 < mc.n_invalid < 54
     # Thick enough for shear to matter, thin enough to compute: a note says so.
     thick = scene.replace(**{"board.thickness": 5e-3})
     assert any("thin-plate (Kirchhoff) theory" in note for note in bd.response_notes(thick, bd.simulate(thick)))

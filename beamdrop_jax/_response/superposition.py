@@ -47,6 +47,7 @@ from .numerics import Numerics
 from .line import _search
 from .setup import _setup
 from .simulate import drop_motion
+from .._board.plate_checks import response_flags
 from .._common.compile import filter_jit, jit
 from .setup import _mode_counts, support_motion
 
@@ -148,20 +149,20 @@ class SuperpositionTable(eqx.Module):
         slack = 1e-9 * hi
         return flag_if((duration < lo - slack) | (duration > hi + slack), Flag.OUTSIDE_TABLE)
 
-    def response(self, board: Board, jumps: Float[Array, "2"], duration, flags) -> tuple[Array, Array, Array]:
+    def response(self, board: Board, jumps: Float[Array, "2"], duration, flags) -> tuple[Array, Array, Array, Array]:
         """Peak stress (Pa), strain (-) and deflection (m) of the table's `board` for support jumps (dvA, dvB)
-        (m/s) and contact `duration` (s); NaN where the `Flag` mask `flags` is not 0."""
+        (m/s) and contact `duration` (s), and the `Flag` mask; NaN where the mask `flags` is not 0."""
         kappa, deflection = self.peaks(jumps, duration)
         half_h = board.thickness / 2
         values = (board.youngs_modulus * half_h * kappa, half_h * kappa, deflection)
-        return tuple(jnp.where(flags != 0, jnp.nan, v) for v in values)
+        return (*(jnp.where(flags != 0, jnp.nan, v) for v in values), flags)
 
     def __call__(self, scene: Scene):
         """(stress, strain, deflection, flags) of one single-impact drop of the table's board."""
         jumps, flags = _drop_jumps(scene, self.law)
         duration = scene.contact.duration
         flags = combine(flags, self.flags, self.outside(duration))
-        return (*self.response(scene.board, jumps, duration, flags), flags)
+        return self.response(scene.board, jumps, duration, flags)
 
 
 PLATE_QUANTITIES = ("stress", "strain", "deflection")
@@ -217,20 +218,22 @@ class PlateTable(eqx.Module):
         """`Flag.OUTSIDE_TABLE` where a contact `duration` (s) is not the table's."""
         return flag_if(jnp.abs(duration - self.durations[0]) > 1e-9 * self.durations[0], Flag.OUTSIDE_TABLE)
 
-    def response(self, board: Plate, jumps: Float[Array, "3"], duration, flags) -> tuple[Array, Array, Array]:
+    def response(self, board: Plate, jumps: Float[Array, "3"], duration, flags) -> tuple[Array, Array, Array, Array]:
         """Peak stress (Pa), strain (-) and deflection (m) of the table's plate `board` for support jumps
-        (dvA, dvB, dvR) (m/s); NaN where the `Flag` mask `flags` is not 0, or where the roll dvR is not (the table
-        spans plane drops: `Flag.OUTSIDE_TABLE`)."""
+        (dvA, dvB, dvR) (m/s), and the `Flag` mask: `flags`, with `Flag.OUTSIDE_TABLE` where the roll dvR is not 0
+        (the table spans plane drops) and `Flag.OUTSIDE_THEORY` where the plate deflects beyond small rotations, as
+        `simulate` flags it; NaN where the mask is not 0."""
         if jumps.shape[-1] > 2:
             flags = combine(flags, flag_if(jumps[2] != 0, Flag.OUTSIDE_TABLE))
         values = self.peaks(board, jumps)
-        return tuple(jnp.where(flags != 0, jnp.nan, v) for v in values)
+        flags = combine(flags, response_flags(board, values[2]))
+        return (*(jnp.where(flags != 0, jnp.nan, v) for v in values), flags)
 
     def __call__(self, scene: Scene):
         """(stress, strain, deflection, flags) of one single-impact drop of the table's plate."""
         jumps, flags = _drop_jumps(scene, self.law)
         flags = combine(flags, self.flags, self.outside(scene.contact.duration))
-        return (*self.response(scene.board, jumps, scene.contact.duration, flags), flags)
+        return self.response(scene.board, jumps, scene.contact.duration, flags)
 
 
 @filter_jit
@@ -289,8 +292,7 @@ def _batch_jumps(samples: Scene, axes, law: str, from_rest: bool):
 @functools.partial(jit, static_argnums=(3,))
 def _batch_response(table: "SuperpositionTable", board: Board, durations, batched: bool, jumps, flags):
     flags = combine(flags, table.outside(durations))
-    values = jax.vmap(table.response, in_axes=(None, 0, 0 if batched else None, 0))(board, jumps, durations, flags)
-    return (*values, flags)
+    return jax.vmap(table.response, in_axes=(None, 0, 0 if batched else None, 0))(board, jumps, durations, flags)
 
 
 def table_peaks(table: SuperpositionTable, samples: Scene, axes, from_rest: bool = False):
