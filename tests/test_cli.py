@@ -603,7 +603,21 @@ def test_flat_plate_drop_prints_plain_numbers_and_names_the_cli_option(capsys, t
     # The 12 x 12 Ritz basis is the largest error on four screws (0.5 % at the centre against 24 x 24), and the
     # note names where a command-line user sets it.
     note = _line(out, "note: not converged")
-    assert "raise Plate.basis (now (12, 12); `basis = [nx, ny]` in the scene file's [plate]" in note
+    assert "raise Plate.basis (now (12, 12); --basis NX,NY, or `basis = [nx, ny]` in the scene file's [plate]" in note
+    # --basis sets it: the same answer as the plate built with that basis.
+    import dataclasses
+
+    import equinox as eqx
+    import beamdrop_jax as bd
+
+    assert main(["drop", "--scene", "jesd22-board", "--basis", "14,16", "--no-plots", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    board = bd.load_scene("jesd22-board")
+    finer = eqx.tree_at(lambda s: s.board, board, dataclasses.replace(board.board, basis=(14, 16)))
+    np.testing.assert_allclose(report["peak_strain_microstrain"], float(bd.simulate(finer).peak.strain) * 1e6,
+                               rtol=1e-7)
+    assert main(["drop", "--basis", "14,16", "--no-plots"]) == 2  # a beam has no basis
+    assert "sets a plate's Ritz basis; this scene's board is a beam" in capsys.readouterr().err
     # A plate supported along its long sides needs more modes (its modes across the width, coupled by Poisson's
     # ratio): the note names the option.
     scene = tmp_path / "sfsf.toml"

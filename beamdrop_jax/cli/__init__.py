@@ -40,6 +40,7 @@ from ._helpers import (
     _int_at_least,
     _int_in,
     _microstrain,
+    _basis,
     _face_bias,
     _range,
     _region,
@@ -89,6 +90,10 @@ def build_parser() -> argparse.ArgumentParser:
                                help=f"at most N modes where the count is chosen from the scene, N in [4, "
                                     f"{MAX_MODES}] (default 16; Numerics.max_modes): raise it when a drop says "
                                     "it is not converged")
+            p.add_argument("--basis", type=_basis, metavar="NX,NY",
+                           help="a plate's Ritz basis, NX x NY functions, each in [4, 40] (default: the scene's, "
+                                "12,12 unless its [plate] gives basis; Plate.basis): raise it when a plate drop says "
+                                "its basis is not converged")
 
     def landing(p):
         p.add_argument("--contact-model", choices=("auto", "rigid", "compliant"),
@@ -265,8 +270,8 @@ def _setup_jax(args):
     import jax
 
     jax.config.update("jax_enable_x64", not args.float32)
-    if getattr(args, "scene", None):
-        _scene(args)  # a wrong scene file is reported before any word on compiling
+    if hasattr(args, "scene"):
+        _scene(args)  # a wrong scene file, or an option it cannot take, is reported before any word on compiling
     if args.no_cache or os.environ.get("BEAMDROP_NO_CACHE", "") not in ("", "0"):
         print("beamdrop: compiling (the compilation cache is off)", file=sys.stderr)
         return None

@@ -135,6 +135,20 @@ def _range(unit, lo, hi, lo_open=False):
     return parse
 
 
+def _basis(text):
+    """'nx,ny' -> (nx, ny), each an int in [4, 40]."""
+    parts = text.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        nx, ny = (int(p) for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: write two whole numbers 'NX,NY', e.g. 20,20") from None
+    if not (4 <= nx <= 40 and 4 <= ny <= 40):
+        raise argparse.ArgumentTypeError(f"{text!r}: each of NX, NY must be in [4, 40]")
+    return nx, ny
+
+
 def _face_bias(text):
     """'share:spread' -> (share in [0, 1], spread in [0, 45] deg)."""
     parts = text.split(":")
@@ -231,6 +245,8 @@ def _cli_note(note: str, numerics) -> str:
     does it, with the field in brackets."""
     n = numerics.max_modes or 16  # unset: the board's own (16 for the beam and the plate)
     for api, cli in (
+        ("`basis = [nx, ny]` in the scene file's [plate], at most 40", "--basis NX,NY, or `basis = [nx, ny]` in the "
+                                                                         "scene file's [plate]; at most 40"),
         ("raise Numerics.max_modes", f"raise --max-modes (Numerics.max_modes, {n} here; at most {MAX_MODES})"),
         ("raise Numerics.pulse_modes (modes up to f_k x duration >= 2 by default)",
          "give more modes with --n-modes N (or, from Python, raise Numerics.pulse_modes: modes up to f_k x "
@@ -250,6 +266,15 @@ def _scene(args):
     model = getattr(args, "contact_model", None)
     if model:
         scene = eqx_replace_contact(scene, scene.contact.with_model(model))
+    if getattr(args, "basis", None):
+        if getattr(scene.board, "basis", None) is None:
+            raise ValueError(f"--basis {args.basis[0]},{args.basis[1]} sets a plate's Ritz basis; this scene's board "
+                             "is a beam (its modes are exact): leave --basis out")
+        import dataclasses
+
+        import equinox as eqx
+
+        scene = eqx.tree_at(lambda s: s.board, scene, dataclasses.replace(scene.board, basis=tuple(args.basis)))
     return scene
 
 
