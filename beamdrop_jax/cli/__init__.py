@@ -351,6 +351,20 @@ def _interrupt_once(signum, frame):
     raise KeyboardInterrupt
 
 
+def _redeliver_lost_interrupts(hook):
+    """A `sys.unraisablehook`: a KeyboardInterrupt that Ctrl-C raised inside a callback whose exceptions Python only
+    prints (JAX's garbage-collection hook) would be a traceback on stderr and a lost interrupt; it is delivered
+    again instead, to the command's own code. Everything else goes to `hook`."""
+
+    def handle(info):
+        if info.exc_type is None or not issubclass(info.exc_type, KeyboardInterrupt):
+            return hook(info)
+        signal.signal(signal.SIGINT, _interrupt_once)
+        threading.Timer(0.02, signal.raise_signal, (signal.SIGINT,)).start()
+
+    return handle
+
+
 def _interrupted_line() -> str:
     files = _active["files"]
     kept = (f"kept the complete files {', '.join(map(str, files))}, nothing else written" if files
@@ -368,6 +382,7 @@ def main(argv=None) -> int:
     if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is \
             signal.default_int_handler:
         previous = signal.signal(signal.SIGINT, _interrupt_once)
+        unraisable, sys.unraisablehook = sys.unraisablehook, _redeliver_lost_interrupts(sys.unraisablehook)
     try:
         return _main(argv)
     except KeyboardInterrupt:
@@ -377,6 +392,7 @@ def main(argv=None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGINT, previous)
+            sys.unraisablehook = unraisable
 
 
 def _main(argv) -> int:
