@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import beamdrop_jax as bd
-from beamdrop_jax._impact.kinematics import box_support_jumps
+from beamdrop_jax._impact.kinematics import box_housing_impact, box_support_jumps
 from beamdrop_jax._response.landing_path import scene_landing
 
 DEPTH = 0.06
@@ -286,3 +286,29 @@ def test_cli_impact_of_a_tilted_box(tmp_path, capsys):
     assert main(["impact", "--scene", "phone", "--law", "newton", "--no-plots", "--no-cache", "--out",
                  str(tmp_path)]) == 2
     assert "poisson or stronge" in capsys.readouterr().err
+
+
+def test_optimize_placement_over_3d_drops(beam_box, tmp_path, capsys):
+    """`optimize_placement(tilts=...)` pairs each orientation with a tilt: its objective is the mean of each
+    drop's own peak stress, and the jumps along the board it reports are the box's 3D rigid motion at the ends."""
+    from beamdrop_jax.cli import main
+
+    scene = beam_box.replace(**{"contact.model": "rigid"})
+    numerics = bd.Numerics(n_modes=4)
+    orientations, tilts = np.radians([30.0, 50.0]), np.array([0.3, -0.2])
+    res = bd.optimize_placement(scene, orientations, tilts=tilts, numerics=numerics, steps=1, starts=1,
+                                progress=False)
+    each = [float(bd.peak_stress(scene.replace(**{"drop.orientation": th, "drop.tilt": ti}), numerics))
+            for th, ti in zip(orientations, tilts)]
+    np.testing.assert_allclose(float(res.initial_value), np.mean(each), rtol=1e-9)
+    flat = bd.optimize_placement(scene, orientations, numerics=numerics, steps=1, starts=1, progress=False)
+    assert abs(float(flat.initial_value) / float(res.initial_value) - 1) > 0.05  # the tilts change the drops
+    for (th, ti), along in zip(zip(orientations, tilts), np.asarray(res.along_before)):
+        hit = box_housing_impact(scene.replace(**{"drop.orientation": th, "drop.tilt": ti}))
+        R, dV, dW = (np.asarray(v) for v in (hit.attitude, hit.dV, hit.dOmega))
+        half = 0.5 * float(scene.board.length)
+        ends = [np.array([-half, 0.0, 0.0]), np.array([half, 0.0, 0.0])]  # the scene's board: centred, level
+        np.testing.assert_allclose(along, [(dV + np.cross(dW, R @ q)) @ (R @ [1.0, 0.0, 0.0]) for q in ends],
+                                   rtol=1e-9, atol=1e-12)
+    assert main(["optimize", "--tilts", "10", "--orientations", "30,40", "--no-plots"]) == 2
+    assert "--tilts turns a box housing out of the plane of motion" in capsys.readouterr().err

@@ -116,8 +116,10 @@ def plot_placement(scene, result, landscape, *, axes=None, orientations=None):
     reach = 0.3 * max(W, H) * 1.1 if orientations is not None else 0.0
     ax2.set_xlim(-max(0.6 * W, reach), max(0.6 * W, reach))
     ax2.set_ylim(-max(0.6 * H, reach), max(0.6 * H, reach))
-    fig.text(0.01, 0.005, "The objective counts the support jumps normal to the board in the plane of the model: "
-             "motion along the board and out of the plane are left out.", fontsize=8, color="0.2", va="bottom")
+    left_out = ("The objective counts the support jumps normal to the board (the box's motion in 3D): motion along "
+                "the board is left out." if scene.housing.is_box else "The objective counts the support jumps normal "
+                "to the board in the plane of the model: motion along the board and out of the plane are left out.")
+    fig.text(0.01, 0.005, left_out, fontsize=8, color="0.2", va="bottom")
     if fig.get_layout_engine() is not None:
         fig.get_layout_engine().set(rect=(0, 0.04, 1, 0.96))
     return fig

@@ -34,13 +34,17 @@ from .._response.objectives import landing_batches, peak_stress
 from .._common.compile import filter_jit
 from .._common.report import plain
 from .optimum import AbstractOptimum
-from .._impact.kinematics import body_axes, housing_impact
+from .._impact.kinematics import body_axes, box_housing_impact, housing_impact
 
 OBJECTIVES = ("mean", "max", "cvar")
 LEAVES_OUT = ("motion along the board and out of the plane: the peak bending stress counts only the support jumps "
               "normal to the board, in the plane of the model; the jumps along the board (which push it lengthwise "
               "and shear its joints) and every motion out of the plane count for nothing, so a lower objective "
               "can hide a harder hit along the board")
+LEAVES_OUT_BOX = ("motion along the board: the peak bending stress counts only the support jumps normal to the board "
+                  "(the box's rigid motion in 3D at each support); the jumps along the board (which push it "
+                  "lengthwise and shear its joints) count for nothing, so a lower objective can hide a harder hit "
+                  "along the board")
 
 
 # Without a region or a maximum angle the map is the housing's alone, written as it was before they existed: the
@@ -272,7 +276,7 @@ class PlacementResult(AbstractOptimum):
             out |= where(scene.placement, "before")
         out |= {"before_objective_MPa": np.asarray(self.initial_value) / 1e6, **where(self.placement, "after"),
                 "after_objective_MPa": np.asarray(self.value) / 1e6, "evaluations": self.n_evaluations,
-                "objective_leaves_out": LEAVES_OUT}
+                "objective_leaves_out": LEAVES_OUT_BOX if scene is not None and scene.housing.is_box else LEAVES_OUT}
         if self.along_before is not None:
             out |= {"largest_jump_along_the_board_before_m_per_s": np.max(np.abs(np.asarray(self.along_before))),
                     "largest_jump_along_the_board_after_m_per_s": np.max(np.abs(np.asarray(self.along_after)))}
@@ -294,12 +298,14 @@ def optimize_placement(
     progress: bool = True,
     region=None,
     max_angle: float | None = None,
+    tilts=None,
 ) -> PlacementResult:
     """Place the board where it suffers least over a set of drops.
 
     **Arguments:**
     - `orientations`: drop orientations (rad); default 7 angles from 15 to 75 degrees. `heights`: drop heights
-      (m); default the scene's.
+      (m); default the scene's. `tilts` (rad, a box housing's: one per orientation; default the scene's tilt)
+      makes each orientation an attitude in 3D.
     - `objective`: `"mean"`, `"max"` or `"cvar"` (level `alpha`) of the peak stress over the drops.
     - `numerics`: default `Numerics(n_modes=8)`, a converged count for phone-like boards with 0.1-1 ms contacts.
     - `steps`, `optimizer` (default `optax.adam(0.05)` on the unconstrained variables), `starts`: the scene's own
@@ -308,8 +314,9 @@ def optimize_placement(
     - `region`: a box ((c1_lo, c2_lo), (c1_hi, c2_hi)) (m, body axes from G) the board's centre stays in;
       `max_angle`: the largest tilt (rad). The scene's placement must satisfy both. Default: the housing alone.
 
-    The objective counts the support jumps normal to the board in the plane of the model; the result holds the
-    jumps along the board (`along_before`, `along_after`), which it leaves out.
+    The objective counts the support jumps normal to the board (for a box housing, the housing's rigid motion in 3D
+    at each support); the result holds the jumps along the board (`along_before`, `along_after`), which it leaves
+    out.
     """
     if objective not in OBJECTIVES:
         raise ValueError(f"objective = {objective!r}; valid: {', '.join(OBJECTIVES)}")
@@ -322,7 +329,7 @@ def optimize_placement(
     if orientations is None:
         orientations = np.radians(np.linspace(15.0, 75.0, 7))
     check_scene(scene)
-    drops = drop_set(scene, orientations, heights)
+    drops = drop_set(scene, orientations, heights, tilts)
     n_drops = int(drops.drop.orientation.shape[0])
     _check_drops(drops, numerics)
     optimizer = _default_optimizer() if optimizer is None else optimizer
@@ -365,6 +372,13 @@ def _along_board_jumps(drops: Scene, params, law: str):
 
     def one(placement, s):
         s = eqx.tree_at(lambda s: (s.placement.centre, s.placement.angle), s, (placement[:2], placement[2]))
+        if s.housing.is_box:  # the rigid motion in 3D at the ends, at their depth
+            hit = box_housing_impact(s, law=law)
+            ends = board_ends(s.placement, s.board.length)
+            depth = jnp.broadcast_to(s.placement.depth_offset, ends.shape[:-1])[..., None]
+            dv = hit.body_point_velocity_jump(jnp.concatenate([ends, depth], axis=-1))
+            c, si = jnp.cos(placement[2]), jnp.sin(placement[2])
+            return dv @ (hit.attitude @ jnp.stack([c, si, jnp.zeros_like(c)]))
         hit = housing_impact(s, law=law)
         dv = hit.point_velocity_jump(s.drop.orientation, board_ends(s.placement, s.board.length))
         e1, e2 = body_axes(s.drop.orientation)
@@ -409,7 +423,8 @@ def _finish(scene, best_u, best_v, histories, path_u, config):
 
 @filter_jit
 def _drop_flags(drops: Scene, law: str):
-    return jax.vmap(lambda s: combine(scene_flags(s), housing_impact(s, law=law).flags))(drops)
+    impact = box_housing_impact if drops.housing.is_box else housing_impact
+    return jax.vmap(lambda s: combine(scene_flags(s), impact(s, law=law).flags))(drops)
 
 
 def _check_drops(drops: Scene, numerics: Numerics) -> None:
@@ -418,8 +433,9 @@ def _check_drops(drops: Scene, numerics: Numerics) -> None:
     flags = np.asarray(_drop_flags(drops, numerics.law))
     bad = np.flatnonzero(flags)
     if bad.size:
-        th, h = np.asarray(drops.drop.orientation), np.asarray(drops.drop.height)
-        listed = "; ".join(f"orientation {np.degrees(th[i]):.4g} deg, height {h[i]:.4g} m: "
+        th, h, ti = (np.asarray(v) for v in (drops.drop.orientation, drops.drop.height, drops.drop.tilt))
+        listed = "; ".join(f"orientation {np.degrees(th[i]):.4g} deg"
+                           + (f", tilt {np.degrees(ti[i]):.4g} deg" if ti[i] else "") + f", height {h[i]:.4g} m: "
                            f"{', '.join(Flag.describe(flags[i]))}" for i in bad[:5])
         raise ValueError(f"optimize_placement: {bad.size} of {flags.size} drops are outside the model ({listed}); "
                          "leave them out of orientations/heights (flat landings are multiples of 90 deg with spin)")
@@ -453,7 +469,7 @@ def _params(p: Placement):
 
 
 def placement_landscape(scene: Scene, result: PlacementResult, orientations=None, heights=None, alpha=0.9,
-                        numerics=None, margin=0.0, n=(61, 31), region=None):
+                        numerics=None, margin=0.0, n=(61, 31), region=None, tilts=None):
     """The objective (Pa) over board-centre positions (c1, c2) at the optimum's angle: (c1 grid, c2 grid, values
     of shape (n1, n2)) over where the centre may go (inside the housing, and the `region` box; default the
     result's). Where the centre has almost no room along one axis (under 10 % of the other's) that axis has one
@@ -461,7 +477,7 @@ def placement_landscape(scene: Scene, result: PlacementResult, orientations=None
     numerics = Numerics(n_modes=8) if numerics is None else numerics
     if orientations is None:
         orientations = np.radians(np.linspace(15.0, 75.0, 7))
-    drops = drop_set(scene, orientations, heights)
+    drops = drop_set(scene, orientations, heights, tilts)
     phi = result.placement.angle
     W, H, L, angle = (float(v) for v in (scene.housing.width, scene.housing.height, scene.board.length, phi))
     R1 = W / 2 - margin - L / 2 * abs(math.cos(angle))

@@ -152,6 +152,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--orientations", type=_degrees_list, default=_degrees_list("15:75:7"), metavar="DEG",
                    help="drop angles in degrees: 'low:high:count' or 'a,b,c' (default 15:75:7)")
     p.add_argument("--heights", type=_heights, metavar="M", help="drop heights in m, 'h1,h2' (default: the scene's)")
+    p.add_argument("--tilts", type=_degrees_list, metavar="DEG",
+                   help="a box housing's tilt out of the plane of motion for each orientation, deg, one per "
+                        "orientation: 'a,b,c' or 'low:high:count' (default: the scene's tilt)")
     p.add_argument("--objective", default="mean", choices=["mean", "max", "cvar"],
                    help="risk over the drops (default mean)")
     p.add_argument("--alpha", type=_float_in(0.0, 0.999, "(CVaR level)"), default=0.9,

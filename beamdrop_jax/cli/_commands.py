@@ -256,16 +256,23 @@ def cmd_optimize(args, output):
 
     scene = _scene(args)
     orientations = np.radians(args.orientations)
+    tilts = None if args.tilts is None else np.radians(args.tilts)
+    if tilts is not None and not scene.housing.is_box:
+        raise ValueError("--tilts turns a box housing out of the plane of motion; this scene is a plane section (give "
+                         "its [housing] a depth, or leave --tilts out)")
+    if tilts is not None and tilts.shape != orientations.shape:
+        raise ValueError(f"--tilts gives one tilt per orientation: {tilts.size} tilts for {orientations.size} "
+                         "orientations")
     numerics = _numerics(args, n_modes=args.n_modes or 8)
     if args.mounts:
-        return _optimize_mounts(args, output, scene, orientations, numerics)
+        return _optimize_mounts(args, output, scene, orientations, numerics, tilts)
     if args.gauge is not None or args.min_spacing:
         raise ValueError("--gauge and --min-spacing go with --mounts (moving a plate's screws); placing the board "
                          "takes --region and --max-angle")
     max_angle = None if args.max_angle is None else math.radians(args.max_angle)
     res = bd.optimize_placement(scene, orientations, args.heights, objective=args.objective, alpha=args.alpha,
                                 numerics=numerics, steps=args.steps, starts=args.starts, margin=args.margin * 1e-3,
-                                progress=not args.json, region=args.region, max_angle=max_angle)
+                                progress=not args.json, region=args.region, max_angle=max_angle, tilts=tilts)
     summary = res.summary(scene)
     leaves_out = summary.pop("objective_leaves_out")
     output.summary(summary, f"Board placement: {args.objective} peak stress over {res.n_drops} drops "
@@ -281,11 +288,12 @@ def cmd_optimize(args, output):
     output.wrote(write_csv(history, Path(args.out) / "optimize-history.csv"))
     if not args.no_plots:
         landscape = bd.placement_landscape(scene, res, orientations, args.heights, alpha=args.alpha,
-                                           numerics=numerics, margin=args.margin * 1e-3, region=args.region)
+                                           numerics=numerics, margin=args.margin * 1e-3, region=args.region,
+                                           tilts=tilts)
         _save(output, bd.plot_placement(scene, res, landscape, orientations=orientations), "placement.png", args)
 
 
-def _optimize_mounts(args, output, scene, orientations, numerics):
+def _optimize_mounts(args, output, scene, orientations, numerics, tilts=None):
     import numpy as np
 
     import beamdrop_jax as bd
@@ -299,6 +307,7 @@ def _optimize_mounts(args, output, scene, orientations, numerics):
                          "fits on the plate (bd.optimize_mounts(region=...) for boxes of your own)")
     gauges = None if args.gauge is None else ((args.gauge[0] * 1e-3, (args.gauge[1] or 0.0) * 1e-3),)
     res = bd.optimize_mounts(scene, min_spacing=args.min_spacing * 1e-3, gauges=gauges, orientations=orientations,
+                             tilts=tilts,
                              heights=args.heights, objective=args.objective, alpha=args.alpha, numerics=numerics,
                              steps=args.steps, starts=args.starts, progress=not args.json)
     what = "the gauge's peak strain" if gauges else "the peak strain over the plate"
