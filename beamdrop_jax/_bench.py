@@ -314,7 +314,7 @@ def plate_bench(repeats: int = 5, n_drops: int = 1 << 20) -> dict:
                 plate_superposed_max_error=dict(zip(("stress", "strain", "deflection"), errors)))
 
 
-def box_bench(repeats: int = 3, n_drops: int = 4096) -> dict:
+def box_bench(repeats: int = 3, n_drops: int = 1 << 20) -> dict:
     """Box housings against plane sections, each pair timed in the same run (median wall times after compiling):
     a whole superposed `montecarlo` of the default beam in a 60 mm deep box over attitudes uniform on the rotation
     group (`DropDistribution.rotations()`: drops from rest, each one's 3D law in closed form) against the plane

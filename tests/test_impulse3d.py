@@ -301,3 +301,32 @@ def test_from_rest_closed_form_is_the_solved_law():
     assert 0 < sticks.sum() < BATCH  # both regimes: stick, and sliding along the invariant direction
     slipping = bd.impulse_3d(K[0], np.array([0.3, 0.0, -1.0]), 0.5, 0.5, from_rest=True)
     assert np.isnan(np.asarray(slipping.P)).all() and int(slipping.flags) & bd.Flag.SOLVER_FAILED
+
+
+def test_invariant_direction_root_on_ill_conditioned_contacts():
+    """The invariant slip direction s* ((mu A + lam I) s* = b, |s*| = 1, lam > 0) found by the bracketed Newton
+    iteration agrees with SciPy's `brentq` on |s(lam)| = 1 to 1e-12, for A with condition numbers up to 1e8, mu
+    from 0 to 2 and b of any size against A."""
+    from scipy.optimize import brentq
+
+    from beamdrop_jax._impact.impulse3d import _invariant_direction
+
+    rng = np.random.default_rng(11)
+    cases = []
+    while len(cases) < BATCH:
+        angle, cond = rng.uniform(0, np.pi), 10 ** rng.uniform(0, 8)
+        Q = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        A = Q @ np.diag([1.0, 1.0 / cond]) @ Q.T * 10 ** rng.uniform(-3, 3)
+        b = rng.normal(size=2) * 10 ** rng.uniform(-6, 2)
+        mu = rng.choice([0.0, rng.uniform(0, 2)])
+        if np.linalg.norm(np.linalg.solve(A, b)) > mu * (1 + 1e-6):
+            cases.append((A, b, mu))
+    A, b, mu = (np.array(x) for x in zip(*cases))
+    s, lam = jax.jit(jax.vmap(_invariant_direction))(A, b, mu)
+    for i, (Ai, bi, mui) in enumerate(cases):
+        size = lambda lam: np.linalg.norm(np.linalg.solve(mui * Ai + lam * np.eye(2), bi)) - 1.0  # noqa: E731
+        hi = np.linalg.norm(bi)
+        root = hi if size(hi) == 0 else brentq(size, 0.0 if mui > 0 else 0.5 * hi, hi, xtol=1e-300, rtol=1e-15)
+        ref = np.linalg.solve(mui * Ai + root * np.eye(2), bi)
+        np.testing.assert_allclose(np.asarray(s[i]), ref / np.linalg.norm(ref), rtol=0, atol=1e-12)
+        assert abs(float(lam[i]) - root) <= 1e-12 * hi, (i, float(lam[i]), root)

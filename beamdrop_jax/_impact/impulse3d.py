@@ -374,7 +374,7 @@ def _segment(theta, e, stronge, log_stop, walk: _Walk, tol: float, sensitivities
     c = _unpack(theta, log_stop)
     target = _target(walk, walk.p_c, walk.W_c, e, stronge)
     busy = ~(walk.stopped | walk.aligned | walk.done | walk.failed)
-    hold = jnp.linalg.solve(c.A, c.b)
+    hold = _solve2(c.A, c.b)
     can_stick = hold @ hold <= c.mu**2
     y0 = _to_state(walk.z, log_stop)
     # What holds at the start is decided here, not by the solve's first look at its events: slip already below the
@@ -480,35 +480,56 @@ def _log_stop(dtype):
 # After the stop: stick or the invariant direction.
 
 
+def _solve2(M, v):
+    """M^-1 v for a 2 x 2 `M` by Cramer's rule: under `vmap` a LAPACK solve per drop cost 20x the arithmetic."""
+    det = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
+    return jnp.stack([M[1, 1] * v[0] - M[0, 1] * v[1], M[0, 0] * v[1] - M[1, 0] * v[0]]) / det
+
+
+_INVARIANT_STEPS = 8
+"""Safeguarded Newton steps on 1/|s(lam)| for `_invariant_direction`: enough for round-off from lam = 0 on
+condition numbers of A to 1e8 (`tests/test_impulse3d.py` checks the root)."""
+
+
 def _invariant_direction(A, b, mu):
-    """The unit s* with (mu A + lam I) s* = b and lam > 0 (unique; the caller makes sure |A^-1 b| > mu)."""
+    """The unit s* with (mu A + lam I) s* = b and lam > 0 (unique; the caller makes sure |A^-1 b| > mu).
+
+    Newton's method on phi(lam) = 1 / |s(lam)| - 1 with s(lam) = (mu A + lam I)^-1 b (Moré and Sorensen's secular
+    equation: phi is nearly linear, so Newton converges in a few steps), kept inside a bracket [lo, hi] that
+    bisects where a step leaves it."""
     eye = jnp.eye(2, dtype=A.dtype)
 
-    def length2_minus_1(lam):
-        x = jnp.linalg.solve(mu * A + lam * eye, b)
-        return x @ x - 1.0, x
-
-    def halve(_, bounds):
-        lo, hi = bounds
-        mid = 0.5 * (lo + hi)
-        above = length2_minus_1(mid)[0] > 0  # |x| > 1: lam too small
-        return jnp.where(above, mid, lo), jnp.where(above, hi, mid)
+    def phi(A, b, mu, lam):
+        x = _solve2(mu * A + lam * eye, b)
+        n2 = x @ x
+        # d|x|/dlam = -x . (M^-1 x) / |x|, so dphi/dlam = x . (M^-1 x) / |x|^3.
+        return jax.lax.rsqrt(n2) - 1.0, (x @ _solve2(mu * A + lam * eye, x)) * n2**-1.5
 
     A_, b_, mu_ = jax.lax.stop_gradient((A, b, mu))
-    lo, hi = jax.lax.fori_loop(0, 110, halve, (jnp.zeros_like(mu_), jnp.linalg.norm(b_)))
-    lam = 0.5 * (lo + hi)
-    # One Newton step with the gradient: the implicit derivative -dG/dtheta / G'(lam) at the root.
-    G, x = length2_minus_1(lam)
-    dG = -2.0 * x @ jnp.linalg.solve(mu * A + lam * eye, x)
-    lam = lam - G / dG
-    s = jnp.linalg.solve(mu * A + lam * eye, b)
+
+    def step(_, state):
+        lam, lo, hi = state
+        f, df = phi(A_, b_, mu_, lam)
+        below = ~(f >= 0)  # NaN too: mu A is singular at lam = 0 when mu = 0, and the root is above 0
+        lo, hi = jnp.where(below, lam, lo), jnp.where(below, hi, lam)
+        newton = lam - f / df
+        inside = (newton > lo) & (newton < hi)
+        return jnp.where(inside, newton, 0.5 * (lo + hi)), lo, hi
+
+    # phi(0) < 0 (|A^-1 b| > mu) and phi(|b|) >= 0 (|s(|b|)| <= 1 as mu A is positive definite): a bracket.
+    start = jnp.zeros_like(mu_)
+    lam, _, _ = jax.lax.fori_loop(0, _INVARIANT_STEPS, step, (start, start, jnp.linalg.norm(b_) + start))
+    # One Newton step with the gradient: the implicit derivative -dphi/dtheta / phi'(lam) at the root.
+    f, df = phi(A, b, mu, lam)
+    lam = lam - f / df
+    s = _solve2(mu * A + lam * eye, b)
     return s / jnp.linalg.norm(s), lam
 
 
 def _after_stop(c: _Contact, e, stronge, walk: _Walk):
     """The final normal impulse p_f, tangential impulse and compression (p_c) once the walk has stopped or aligned,
     along the straight piece that follows: sticking (|A^-1 b| <= mu) or sliding along the invariant direction."""
-    hold = jnp.linalg.solve(c.A, c.b)  # A^-1 b
+    hold = _solve2(c.A, c.b)  # A^-1 b
     sticks = hold @ hold <= c.mu**2
     safe = (jnp.eye(2, dtype=c.A.dtype), jnp.array([1.0, 0.0], dtype=c.A.dtype), jnp.zeros_like(c.mu))
     A, b, mu = (jnp.where(sticks, s, v) for s, v in zip(safe, (c.A, c.b, c.mu)))
