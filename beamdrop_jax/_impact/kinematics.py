@@ -217,15 +217,13 @@ _support_jumps_program = filter_jit(_support_jumps)
 def box_housing_impact(scene: Scene, law: str = "poisson", from_rest: bool = False) -> BoxImpact:
     """The first impact of a box housing (`Housing.depth`): its lowest vertex (an edge's midpoint or a face's centre
     where several are equally low) struck under the 3D rigid law (`bd.box_impact`), G falling from `Drop.height`
-    with `Drop.horizontal_speed` along x and `Drop.spin` about z (`from_rest`, static: both are 0, the law's closed
-    form)."""
+    at `Drop.velocity()` and turning at `Drop.angular_velocity()` (`from_rest`, static: no spin and no horizontal
+    speed, the law's closed form)."""
     h, d, c = scene.housing, scene.drop, scene.contact
     if not h.is_box:
         raise ValueError("box_housing_impact needs a box housing: give Housing.depth (m)")
-    zero = jnp.zeros_like(d.spin)
-    velocity = jnp.stack([d.horizontal_speed, -jnp.sqrt(2.0 * GRAVITY * jnp.maximum(d.height, 0.0)), zero])
-    return box_impact(h.mass, h.width, h.height, h.depth, h.moments, d.orientation, d.tilt, velocity,
-                      jnp.stack([zero, zero, d.spin]), c.friction, c.restitution, law=law, from_rest=from_rest)
+    return box_impact(h.mass, h.width, h.height, h.depth, h.moments, d.orientation, d.tilt, d.velocity(),
+                      d.angular_velocity(), c.friction, c.restitution, law=law, from_rest=from_rest)
 
 
 def box_support_jumps(scene: Scene, hit: BoxImpact) -> Float[Array, "3"]:
@@ -244,11 +242,17 @@ def box_support_jumps(scene: Scene, hit: BoxImpact) -> Float[Array, "3"]:
 
 def drop_jumps(scene: Scene, plane_jumps: Float[Array, "2"], law: str = "poisson", from_rest: bool = False):
     """The first impact's rigid-motion inputs (dvA, dvB, dvR) of the board and the box's impact (None for a
-    plane section): a plane section's or a box's at tilt = 0 are `plane_jumps` with no roll (a box on an edge
-    along e3, struck with motion in the plane, is the plane section exactly); a tilted box's come from its 3D
-    impact (`box_support_jumps`)."""
+    plane section): a plane section's, or a box's at tilt = 0 with its motion in the plane (`plane_drop`), are
+    `plane_jumps` with no roll (a box on an edge along e3, struck with motion in the plane, is the plane section
+    exactly); any other box's come from its 3D impact (`box_support_jumps`)."""
     plane = jnp.concatenate([plane_jumps, jnp.zeros_like(plane_jumps[:1])])
     if not scene.housing.is_box:
         return plane, None
     hit = box_housing_impact(scene, law, from_rest)
-    return jnp.where(scene.drop.tilt == 0, plane, box_support_jumps(scene, hit)), hit
+    return jnp.where(plane_drop(scene), plane, box_support_jumps(scene, hit)), hit
+
+
+def plane_drop(scene: Scene):
+    """Whether a drop is the plane section's: no tilt and motion in the plane of motion (a box then lands on an
+    edge along e3, struck symmetrically about its mid-depth)."""
+    return (scene.drop.tilt == 0) & scene.drop.in_plane()

@@ -4,6 +4,7 @@ import numpy as np
 
 from .._common.checks import on_host
 from .._scene.containers import board_ends
+from .._studies.montecarlo import _FIELDS as SAMPLED_FIELDS, _SHOWN as SHOWN_FIELDS
 from .._studies.standards import STANDARDS
 from .common import _axes
 
@@ -157,12 +158,8 @@ def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None, 
     face, which random drops never draw under the rigid law (a hair off flat, one corner strikes first)."""
     import matplotlib.pyplot as plt
 
-    names = {"orientation": ("orientation", "deg", 180 / np.pi), "height": ("drop height", "m", 1.0),
-             "duration": ("contact duration", "ms", 1e3), "spin": ("spin", "rad/s", 1.0),
-             "horizontal_speed": ("horizontal speed", "m/s", 1.0), "friction": ("friction", "", 1.0),
-             "restitution": ("restitution", "", 1.0)}
-    paths = {"orientation": "drop", "height": "drop", "spin": "drop", "horizontal_speed": "drop",
-             "friction": "contact", "restitution": "contact", "duration": "contact"}
+    names = {name: (what, unit.strip(), scale) for name, (what, unit, scale) in SHOWN_FIELDS.items()}
+    paths = {name: path.split(".")[0] for name, path in SAMPLED_FIELDS.items()}
     valid = np.asarray(result.valid)
     n = valid.shape[0]
 

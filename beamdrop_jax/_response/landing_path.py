@@ -31,7 +31,7 @@ from .._common.compile import filter_jit
 from .._impact.box import BoxImpact, box_vertices, lowest_vertex
 from .._impact.box_landing import BoxLanding, box_landing
 from .._impact.kinematics import (HousingImpact, _in_ground, _support_jumps, box_housing_impact, drop_jumps,
-                                  housing_impact)
+                                  housing_impact, plane_drop)
 from .._impact.landing import Landing, _landing, housing_corners
 from .._impact.motion import HalfSine, LandingMotion
 from .._scene.containers import Scene, board_ends
@@ -96,9 +96,8 @@ def box_strike_times(scene: Scene, hit: BoxImpact):
     first-touch attitude: the times matter where they are short, a few contact durations, where the body has turned
     little."""
     h, d = scene.housing, scene.drop
-    zero = jnp.zeros_like(d.spin)
-    v = jnp.stack([d.horizontal_speed, -jnp.sqrt(2.0 * GRAVITY * jnp.maximum(d.height, 0.0)), zero]) + hit.dV
-    spin = jnp.stack([zero, zero, d.spin]) + hit.dOmega
+    v = d.velocity() + hit.dV
+    spin = d.angular_velocity() + hit.dOmega
     arms = box_vertices(h.width, h.height, h.depth) @ hit.attitude.T
     height = arms[:, 1] - jnp.min(arms[:, 1])
     rate = v[1] + jnp.cross(spin, arms)[:, 1]
@@ -115,15 +114,36 @@ def box_strike_times(scene: Scene, hit: BoxImpact):
     return t[partner], jnp.min(jnp.where((others == struck) | (others == partner), jnp.inf, t))
 
 
+ASYMMETRY = 0.01
+"""Where a box's edge along the depth strikes with motion out of the plane, the asymmetry of its two vertices'
+strikes (`edge_asymmetry`) up to which the edge still lands as one contact (the plane section's impact); beyond
+(1 + BLEND) times it, the compliant landing."""
+
+
+def edge_asymmetry(scene: Scene, hit: BoxImpact):
+    """How unequally the two vertices of the struck edge along the depth (e3) meet the ground, relative to the
+    approach speed: (|difference of their approach speeds| + |slip along the edge|) / |approach speed|, before
+    the impact. 0 for motion in the plane."""
+    d, e3 = scene.drop, hit.attitude[:, 2]
+    w = d.angular_velocity()
+    u = d.velocity() + jnp.cross(w, hit.r)
+    spread = jnp.cross(w, scene.housing.depth * e3)[1]
+    return (jnp.abs(spread) + jnp.abs(u @ e3)) / jnp.maximum(jnp.abs(u[1]), jnp.finfo(u.dtype).tiny)
+
+
 def edge_weight(scene: Scene, hit: BoxImpact):
     """Under `"auto"`, the share of a box's first impact that its edge along the depth takes as one contact (the
-    plane section's impact, exact at tilt = 0) rather than its lowest vertex alone (the 3D rigid law): 1 at
-    tilt = 0, the smoothstep in the edge's other vertex's strike time (`box_strike_times`) over one to three
-    contact durations, as `compliant_weight`'s; 0 for tilts beyond 90 deg, where the edge is not the plane's."""
+    plane section's impact, exact at tilt = 0 with the motion in the plane) rather than its lowest vertex alone
+    (the 3D rigid law) or, where the edge's vertices strike unequally, the compliant landing: 1 for the plane
+    section's drop (`plane_drop`), the smoothstep in the edge's other vertex's strike time (`box_strike_times`)
+    over one to three contact durations, as `compliant_weight`'s, for a tilted drop; times the smoothstep in
+    `edge_asymmetry` over `ASYMMETRY` to (1 + `BLEND`) `ASYMMETRY` where the motion leaves the plane; 0 for tilts
+    beyond 90 deg, where the edge is not the plane's."""
     tau = scene.contact.duration
     t_edge = box_strike_times(scene, hit)[0]
-    tilt = scene.drop.tilt
-    return jnp.where(tilt == 0, 1.0, jnp.where(jnp.cos(tilt) > 0, _smoothstep(t_edge, tau), 0.0))
+    d = scene.drop
+    near = jnp.where(d.tilt == 0, 1.0, jnp.where(jnp.cos(d.tilt) > 0, _smoothstep(t_edge, tau), 0.0))
+    return near * jnp.where(d.in_plane(), 1.0, _smoothstep(edge_asymmetry(scene, hit), ASYMMETRY))
 
 
 def first_jumps(scene: Scene, numerics: Numerics, plane_jumps):
@@ -131,7 +151,9 @@ def first_jumps(scene: Scene, numerics: Numerics, plane_jumps):
     `drop_jumps`, and under `"auto"` a box's blended with its edge's as one contact (`edge_weight`)."""
     jumps, box = drop_jumps(scene, plane_jumps, numerics.law, numerics.from_rest)
     if box is not None and scene.contact.model == "auto" and numerics.max_impacts == 1:
-        w_edge = edge_weight(scene, box)
+        # At tilt 0 the rigid law's part is the edge's, whatever the motion: where the edge strikes unequally the
+        # compliant landing takes the rest (`box_compliant_weight`).
+        w_edge = jnp.where(scene.drop.tilt == 0, 1.0, edge_weight(scene, box))
         plane = jnp.concatenate([plane_jumps, jnp.zeros_like(jumps[:1])])
         jumps = w_edge * plane + (1.0 - w_edge) * jumps
     return jumps, box
@@ -145,7 +167,10 @@ def box_compliant_weight(scene: Scene, numerics: Numerics, plane_weight):
     hit = box_housing_impact(scene, numerics.law, numerics.from_rest)
     w_edge = edge_weight(scene, hit)
     tau = scene.contact.duration
-    others = jnp.where(hit.tied & (scene.drop.tilt != 0), 1.0, _smoothstep(box_strike_times(scene, hit)[1], tau))
+    t_edge, t_others = box_strike_times(scene, hit)
+    # With motion out of the plane the edge's other vertex is one more strike that may overlap the first.
+    t_next = jnp.where(scene.drop.in_plane(), t_others, jnp.minimum(t_edge, t_others))
+    others = jnp.where(hit.tied & ~plane_drop(scene), 1.0, _smoothstep(t_next, tau))
     return w_edge * plane_weight + (1.0 - w_edge) * others
 
 
@@ -160,10 +185,8 @@ def scene_landing(scene: Scene, window, max_steps: int = 32768) -> Landing | Box
     h, c, d = scene.housing, scene.contact, scene.drop
     nan = jnp.asarray(jnp.nan, dtype=jnp.result_type(float))
     if h.is_box:
-        v = _velocity(scene)
-        zero = jnp.zeros_like(d.spin)
         return box_landing(h.width, h.height, h.depth, h.mass, h.moments, c.friction, c.restitution, c.duration,
-                           d.orientation, d.tilt, jnp.stack([v[0], v[1], zero]), jnp.stack([zero, zero, d.spin]),
+                           d.orientation, d.tilt, d.velocity(), d.angular_velocity(),
                            jnp.asarray(GRAVITY, dtype=nan.dtype), nan, window, max_steps=max_steps, through=True)
     return _landing(h.width, h.height, h.mass, h.inertia, c.friction, c.restitution, c.duration, d.orientation,
                     _velocity(scene), d.spin, jnp.asarray(GRAVITY, dtype=nan.dtype), nan, window, rtol=1e-10,

@@ -17,9 +17,9 @@ from .._board.base import AbstractBoard
 from .._common.checks import Flag, combine, flag_if, is_concrete, raise_if_flagged
 from .._common.compile import filter_jit
 from .._impact.clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
-from .._impact.kinematics import housing_impact
+from .._impact.kinematics import housing_impact, plane_drop
 from .._impact.motion import AbstractMotion, PulseTrain
-from .._scene.containers import Scene, check_scene, require_single, scene_flags
+from .._scene.containers import Scene, _largest, check_scene, require_single, scene_flags
 from .landing_path import compliant_weight, first_jumps, landing_motion
 from .line import _respond_line
 from .numerics import Numerics
@@ -77,9 +77,14 @@ def _drop_motion(scene: Scene, numerics: Numerics):
     jumps, box = first_jumps(scene, numerics, impacts.support_jumps[0])
     flags = impacts.flags
     if box is not None:
-        tilted = scene.drop.tilt != 0
-        flags = combine(flags, jnp.where(tilted, box.flags, 0),
-                        flag_if(tilted & (numerics.max_impacts > 1), Flag.OUT_OF_PLANE))
+        out = ~plane_drop(scene)
+        box_flags = box.flags
+        if scene.contact.model != "rigid" and numerics.max_impacts == 1:
+            # An edge struck unequally (motion out of the plane at tilt 0) is the edge's as one contact or the
+            # compliant landing's (`edge_weight`), given a contact duration.
+            box_flags = jnp.where(scene.contact.duration > 0, box_flags & ~Flag.FLAT_LANDING_WITH_MOTION, box_flags)
+        flags = combine(flags, jnp.where(out, box_flags, 0), flag_if(out & (numerics.max_impacts > 1),
+                                                                     Flag.OUT_OF_PLANE))
     if numerics.max_impacts == 1:
         motion = support_motion(scene, jumps)
     else:
@@ -162,25 +167,42 @@ def _raise_eagerly(scene: Scene, numerics: Numerics, flags, impacts: Impacts | N
 
 
 def _raise_if_out_of_plane(scene: Scene, numerics: Numerics) -> None:
-    """A tilted box asked to clatter, which follows the plane section only (`Flag.OUT_OF_PLANE` under jit)."""
-    if not scene.housing.is_box or not is_concrete(scene.drop.tilt) or not np.any(np.asarray(scene.drop.tilt)):
+    """A box asked to clatter out of the plane (tilted, or moving out of the plane), which clattering, following
+    the plane section only, cannot (`Flag.OUT_OF_PLANE` under jit); a box landing on an edge (tilt 0) with motion
+    out of the plane under the rigid law, whose vertices strike together but unequally
+    (`Flag.FLAT_LANDING_WITH_MOTION` under jit)."""
+    if not scene.housing.is_box or not is_concrete(scene.drop):
         return
-    tilt = float(np.max(np.abs(np.asarray(scene.drop.tilt))))
-    if numerics.max_impacts > 1:
-        raise ValueError(f"Numerics.max_impacts = {numerics.max_impacts} with Drop.tilt = {tilt:g} rad: clattering "
-                         "follows the plane section only; valid: max_impacts = 1 for a tilted box, or tilt = 0")
+    d = scene.drop
+    edge = (np.asarray(d.tilt) == 0) & ~np.asarray(d.in_plane())
+    if np.any(edge) and (scene.contact.model == "rigid" or numerics.max_impacts > 1):
+        raise ValueError(f"Drop.tilt = 0 with Drop.side_speed = {_largest(d.side_speed):g} m/s, Drop.spin_x = "
+                         f"{_largest(d.spin_x):g} and Drop.spin_y = {_largest(d.spin_y):g} rad/s: the box lands on "
+                         "an edge whose two vertices strike together but unequally, outside the single-vertex rigid "
+                         "law; valid: Contact(model='auto') or 'compliant' (the compliant landing; max_impacts = 1), "
+                         "a tilt other than 0, or motion in the plane")
+    if numerics.max_impacts == 1 or np.all(np.asarray(plane_drop(scene))):
+        return
+    raise ValueError(f"Numerics.max_impacts = {numerics.max_impacts} with Drop.tilt = {_largest(d.tilt):g} rad, "
+                     f"Drop.side_speed = {_largest(d.side_speed):g} m/s, Drop.spin_x = {_largest(d.spin_x):g} and "
+                     f"Drop.spin_y = {_largest(d.spin_y):g} rad/s: clattering follows the plane section only; valid: "
+                     "max_impacts = 1 for a drop out of the plane (or Contact(model='compliant'), whose landing "
+                     "includes every strike in the board's peak window), or tilt = 0 with motion in the plane")
+
+
+_FROM_REST_ZERO = ("spin", "horizontal_speed", "side_speed", "spin_x", "spin_y")
 
 
 def _raise_if_not_from_rest(scene: Scene, numerics: Numerics) -> None:
     """`Numerics.from_rest` asked of a drop with spin or horizontal speed (NaN and `Flag.SOLVER_FAILED` under jit)."""
-    if not (numerics.from_rest and scene.housing.is_box and is_concrete(scene.drop.spin, scene.drop.horizontal_speed)):
+    if not (numerics.from_rest and scene.housing.is_box and is_concrete(scene.drop)):
         return
-    for name in ("spin", "horizontal_speed"):
+    for name in _FROM_REST_ZERO:
         value = np.asarray(getattr(scene.drop, name))
         if np.any(value != 0):
-            raise ValueError(f"Numerics.from_rest = True with Drop.{name} = {float(np.max(np.abs(value))):g}: the "
-                             "closed-form 3D law holds for drops from rest only; valid: Drop.spin = 0 and "
-                             "Drop.horizontal_speed = 0, or Numerics.from_rest = False")
+            raise ValueError(f"Numerics.from_rest = True with Drop.{name} = {_largest(value):g}: the closed-form 3D "
+                             f"law holds for drops from rest only; valid: Drop.{' = 0, Drop.'.join(_FROM_REST_ZERO)} "
+                             "= 0, or Numerics.from_rest = False")
 
 
 def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Response:

@@ -20,8 +20,8 @@ from jaxtyping import Array, Float
 from .._board.beam import Board
 from .._common.fields import VECTOR_FIELDS, check_ranges, init_fields, positive, range_flags
 from .._common.compile import filter_jit
-from .._common.checks import (DEG, Flag, Range, array_module, as_float, combine, flag_if, is_concrete, on_host,
-                      raise_if_flagged)
+from .._common.checks import (DEG, GRAVITY, Flag, Range, array_module, as_float, combine, flag_if, is_concrete,
+                               on_host, raise_if_flagged)
 
 # Angles beyond this many radians (about 1600 turns) are rejected: no drop needs them, and the sine and cosine of
 # larger arguments lose their argument reduction in the fast polynomial the response uses.
@@ -134,15 +134,20 @@ class Placement(eqx.Module):
 
 class Drop(eqx.Module):
     """How the housing lands: `orientation` theta of e1 from the ground (rad), drop `height` (m),
-    `spin` (rad/s, counter-clockwise positive) and `horizontal_speed` (m/s) just before impact; `tilt` (rad) turns a
-    box housing (`Housing.depth`) about the ground's horizontal axis in the plane of motion, after `orientation`
-    (0: the plane drop; `bd.box_attitude`)."""
+    `spin` (rad/s about z, counter-clockwise positive) and `horizontal_speed` (m/s along x) just before impact;
+    `tilt` (rad) turns a box housing (`Housing.depth`) about the ground's horizontal axis in the plane of motion,
+    after `orientation` (0: the plane drop; `bd.box_attitude`). A box's motion may also leave the plane:
+    `side_speed` (m/s along z, out of the plane), `spin_x` and `spin_y` (rad/s about the ground's x and y axes);
+    a plane section has none of these."""
 
     orientation: Float[Array, ""]
     height: Float[Array, ""]
     spin: Float[Array, ""]
     horizontal_speed: Float[Array, ""]
     tilt: Float[Array, ""]
+    side_speed: Float[Array, ""]
+    spin_x: Float[Array, ""]
+    spin_y: Float[Array, ""]
 
     RANGES: ClassVar[dict] = {
         "orientation": _ANGLE,
@@ -150,14 +155,32 @@ class Drop(eqx.Module):
         "spin": _ANY["rad/s"],
         "horizontal_speed": _ANY["m/s"],
         "tilt": _ANGLE,
+        "side_speed": _ANY["m/s"],
+        "spin_x": _ANY["rad/s"],
+        "spin_y": _ANY["rad/s"],
     }
 
-    def __init__(self, orientation=30 * DEG, height=1.5, spin=0.0, horizontal_speed=0.0, tilt=0.0):
+    def __init__(self, orientation=30 * DEG, height=1.5, spin=0.0, horizontal_speed=0.0, tilt=0.0, side_speed=0.0,
+                 spin_x=0.0, spin_y=0.0):
         init_fields(self, dict(orientation=orientation, height=height, spin=spin, horizontal_speed=horizontal_speed,
-                               tilt=tilt))
+                               tilt=tilt, side_speed=side_speed, spin_x=spin_x, spin_y=spin_y))
 
     def __check_init__(self):
         check_ranges(self)
+
+    def velocity(self) -> Float[Array, "3"]:
+        """G's velocity (x, y, z) just before impact, m/s, ground frame: falling from `height`."""
+        fall = -jnp.sqrt(2.0 * GRAVITY * jnp.maximum(self.height, 0.0))
+        return jnp.stack(jnp.broadcast_arrays(self.horizontal_speed, fall, self.side_speed), axis=-1)
+
+    def angular_velocity(self) -> Float[Array, "3"]:
+        """The housing's angular velocity (about x, y, z) just before impact, rad/s, ground frame."""
+        return jnp.stack(jnp.broadcast_arrays(self.spin_x, self.spin_y, self.spin), axis=-1)
+
+    def in_plane(self):
+        """Whether the motion stays in the plane of motion: no `side_speed`, `spin_x` or `spin_y` (elementwise)."""
+        xp = array_module(self)
+        return (xp.asarray(self.side_speed) == 0) & (xp.asarray(self.spin_x) == 0) & (xp.asarray(self.spin_y) == 0)
 
 
 CONTACT_MODELS = ("auto", "rigid", "compliant")
@@ -321,7 +344,12 @@ def _box_only(scene):
     if scene.housing.is_box:
         return False
     xp = array_module(scene)
-    return (xp.asarray(scene.drop.tilt) != 0) | (xp.asarray(scene.placement.depth_offset) != 0)
+    return ((xp.asarray(scene.drop.tilt) != 0) | (xp.asarray(scene.placement.depth_offset) != 0)
+            | ~scene.drop.in_plane())
+
+
+def _largest(v) -> float:
+    return float(np.max(np.abs(v)))
 
 
 def _check_fits(scene) -> None:
@@ -330,9 +358,11 @@ def _check_fits(scene) -> None:
     scene = on_host(scene)
     if np.any(_box_only(scene)):
         raise ValueError(
-            f"Drop.tilt = {float(np.max(np.abs(scene.drop.tilt))):g} rad and Placement.depth_offset = "
-            f"{float(np.max(np.abs(scene.placement.depth_offset))):g} m turn or move things out of the plane of "
-            "motion, which a plane section does not have; valid: 0 for both, or a box housing (Housing.depth, m)")
+            f"Drop.tilt = {_largest(scene.drop.tilt):g} rad, Placement.depth_offset = "
+            f"{_largest(scene.placement.depth_offset):g} m, Drop.side_speed = {_largest(scene.drop.side_speed):g} "
+            f"m/s, Drop.spin_x = {_largest(scene.drop.spin_x):g} and Drop.spin_y = {_largest(scene.drop.spin_y):g} "
+            "rad/s turn or move things out of the plane of motion, which a plane section does not have; valid: 0 for "
+            "each, or a box housing (Housing.depth, m)")
     if not np.any(_board_outside(scene)):
         return
     ends = board_ends(scene.placement, scene.board.length)

@@ -8,7 +8,7 @@ what differs. Keys that may always be left out, because leaving them out means s
 borrowing a number from another device: `radius_of_gyration` (a uniform plate's), `axial_force`, `damping_ratio`,
 `spin` and `horizontal_speed` (all 0), `model` in `[contact]` (`"auto"`), and the box housing's `depth` (none: the
 plane section), `principal_inertia` ([I1, I2, I3]; a uniform box's), `tilt_deg` in `[drop]` and `depth_offset` in
-`[placement]` (0).
+`[placement]`, and a box's motion out of the plane, `side_speed`, `spin_x` and `spin_y` in `[drop]` (0).
 
 Reading is strict: a value of the wrong type (a string, a bool, a list where a number is meant), an unknown key
 (with a "did you mean"), a bare angle key (it would be read as radians), a missing key or section, a value out of
@@ -40,6 +40,9 @@ OPTIONAL_KEYS = {
     ("board", "damping_ratio"),
     ("drop", "spin"),
     ("drop", "horizontal_speed"),
+    ("drop", "side_speed"),
+    ("drop", "spin_x"),
+    ("drop", "spin_y"),
     ("board", "ends"),
     ("contact", "model"),
     ("plate", "damping_ratio"),

@@ -43,7 +43,11 @@ _FIELDS = {
     "restitution": "contact.restitution",
     "duration": "contact.duration",
     "tilt": "drop.tilt",
+    "side_speed": "drop.side_speed",
+    "spin_x": "drop.spin_x",
+    "spin_y": "drop.spin_y",
 }
+_PLANE_FIELDS = 7  # the first seven of `_FIELDS` apply to a plane section; the rest to a box
 
 
 # How `DropDistribution.describe` shows each field: its name, unit and scale from SI.
@@ -56,6 +60,9 @@ _SHOWN = {
     "restitution": ("restitution", "", 1.0),
     "duration": ("contact duration", " ms", 1e3),
     "tilt": ("tilt", " deg", 180.0 / math.pi),
+    "side_speed": ("side speed", " m/s", 1.0),
+    "spin_x": ("spin about x", " rad/s", 1.0),
+    "spin_y": ("spin about y", " rad/s", 1.0),
 }
 
 
@@ -101,6 +108,9 @@ class DropDistribution(eqx.Module):
     restitution: tuple | None = eqx.field(static=True, default=None)
     duration: tuple | None = eqx.field(static=True, default=None)
     tilt: tuple | None = eqx.field(static=True, default=None)
+    side_speed: tuple | None = eqx.field(static=True, default=None)
+    spin_x: tuple | None = eqx.field(static=True, default=None)
+    spin_y: tuple | None = eqx.field(static=True, default=None)
 
     @classmethod
     def rotations(cls, **others) -> "DropDistribution":
@@ -145,9 +155,10 @@ class DropDistribution(eqx.Module):
     def sample(self, scene: Scene, n: int, key) -> Scene:
         """n scenes: the varied fields get a leading axis n, the others stay as in `scene`."""
         out = scene
-        # The plane's seven fields keep the streams they had before the tilt joined them (the same key, the same
-        # drops); the tilt draws from a key of its own.
-        keys = [*jax.random.split(key, len(_FIELDS) - 1), jax.random.fold_in(key, len(_FIELDS))]
+        # The plane's seven fields keep the streams they had before the box's fields joined them (the same key,
+        # the same drops); each box field draws from a key of its own.
+        keys = [*jax.random.split(key, _PLANE_FIELDS), *(jax.random.fold_in(key, i + 1)
+                                                         for i in range(_PLANE_FIELDS, len(_FIELDS)))]
         for (name, path), k in zip(_FIELDS.items(), keys):
             spec = getattr(self, name)
             if spec is None:
@@ -451,9 +462,10 @@ def montecarlo(
     if not distribution.varied():
         raise ValueError("DropDistribution varies no field: every drop would be the same (use simulate for one drop)")
     check_scene(scene)
-    if distribution.tilt is not None and not scene.housing.is_box:
-        raise ValueError("DropDistribution.tilt varies the tilt of a box housing: give Housing.depth (m), or leave "
-                         "tilt out for the plane section")
+    box_only = [name for name in list(_FIELDS)[_PLANE_FIELDS:] if getattr(distribution, name) is not None]
+    if box_only and not scene.housing.is_box:
+        raise ValueError(f"DropDistribution.{box_only[0]} varies a box housing's drop out of the plane: give "
+                         f"Housing.depth (m), or leave {', '.join(box_only)} out for the plane section")
     samples = distribution.sample(scene, n, key)
     durations = None  # the table's span of contact durations, when they vary
     cannot = superposes(Numerics() if numerics is None else numerics, scene.board)
@@ -468,9 +480,9 @@ def montecarlo(
         else:
             cannot = superposes(Numerics() if numerics is None else numerics, scene.board, durations)
     if cannot is None and scene.board.SURFACE and scene.housing.is_box and (
-            distribution.tilt is not None or np.any(np.asarray(scene.drop.tilt))):
-        cannot = ("a tilted box rolls a plate's supports across its width, which a plate's table (plane drops) does "
-                  "not span")
+            box_only or np.any(np.asarray(scene.drop.tilt)) or not np.all(scene.drop.in_plane())):
+        cannot = ("a box tilted or moving out of the plane rolls a plate's supports across its width, which a "
+                  "plate's table (plane drops) does not span")
     if superpose and cannot:
         raise ValueError(f"montecarlo(superpose=True) needs one pulse for every drop, but {cannot}")
     superpose = cannot is None if superpose is None else bool(superpose)
@@ -544,8 +556,9 @@ LANDING_BATCH = 8
 
 def _from_rest(scene: Scene, samples: Scene) -> bool:
     """Whether every sampled drop of a box starts from rest: its 3D law in closed form (`Numerics.from_rest`)."""
-    return bool(scene.housing.is_box and not np.any(np.asarray(samples.drop.spin))
-                and not np.any(np.asarray(samples.drop.horizontal_speed)))
+    d = samples.drop
+    return bool(scene.housing.is_box and not any(np.any(np.asarray(v)) for v in
+                                                 (d.spin, d.horizontal_speed, d.side_speed, d.spin_x, d.spin_y)))
 
 
 LANDING_SECONDS = 0.5
