@@ -371,7 +371,7 @@ def test_a_plate_needs_float64():
 
 def test_superposed_montecarlo_on_a_plate_matches_each_drops_own_search():
     from beamdrop_jax._studies.montecarlo import evaluate_batch, sample_axes
-    from beamdrop_jax._response.superposition import _build_plate, table_numerics
+    from beamdrop_jax._response.superposition import _plane_plate_table, table_numerics
 
     scene, _ = _screwed_scene()
     distribution = bd.DropDistribution(orientation=("uniform", 0.0, 2 * math.pi), height=("uniform", 0.3, 1.5),
@@ -391,7 +391,7 @@ def test_superposed_montecarlo_on_a_plate_matches_each_drops_own_search():
     # A plate that is its own mirror image (x -> L - x) searches half the directions and mirrors the rest.
     plate = eqx.tree_at(lambda p: p.mounts, scene.board, jnp.array([(0.005, -0.021), (0.095, -0.021),
                                                                      (0.005, 0.021), (0.095, 0.021)]))
-    tables = [bd.PlateTable(*_build_plate(plate, scene.contact.duration, numerics, 32, symmetric)[:4],
+    tables = [bd.PlateTable(*_plane_plate_table(plate, scene.contact.duration, numerics, 32, symmetric)[:4],
                             jnp.reshape(scene.contact.duration, (1,)), jnp.int32(0)) for symmetric in (True, False)]
     jumps = jax.random.normal(jax.random.PRNGKey(5), (256, 2))
     mirrored, searched = (np.asarray(jax.vmap(lambda j: table.peaks(plate, j))(jumps)) for table in tables)

@@ -296,15 +296,19 @@ class Plate(AbstractBoard):
         """The same plate with a Ritz basis `step` functions larger each way (at most 40): the basis check."""
         return dataclasses.replace(self, basis=tuple(min(b + step, 40) for b in self.basis))
 
-    def mirror_symmetric(self) -> bool:
-        """Whether a concrete plate maps onto itself under x -> L - x (its two ends alike, its mounts in mirror
-        pairs); False for traced plates."""
-        if not is_concrete(self) or self.edges[0] != self.edges[2]:
+    def mirror_symmetric(self, axis: str = "x") -> bool:
+        """Whether a concrete plate maps onto itself under x -> L - x (`axis="x"`: its two ends alike, its mounts in
+        mirror pairs) or under y -> -y (`axis="y"`: its two long edges alike, its mounts in pairs across the centre
+        line); False for traced plates."""
+        if axis not in ("x", "y"):
+            raise ValueError(f"axis = {axis!r}; valid: 'x' (x -> L - x) or 'y' (y -> -y)")
+        k = 0 if axis == "x" else 1
+        if not is_concrete(self) or self.edges[k] != self.edges[k + 2]:
             return False
         if self.mounts is None:
             return True
         m = np.asarray(self.mounts)
-        mirror = np.stack([float(self.length) - m[:, 0], m[:, 1]], axis=1)
+        mirror = np.stack([float(self.length) - m[:, 0], m[:, 1]] if k == 0 else [m[:, 0], -m[:, 1]], axis=1)
         gaps = np.abs(m[:, None, :] - mirror[None, :, :]).max(axis=-1).min(axis=1)
         return bool(np.all(gaps <= 1e-9 * float(self.length)))
 

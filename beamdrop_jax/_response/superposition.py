@@ -177,6 +177,10 @@ class PlateTable(eqx.Module):
       (m per m/s) and curvatures k_xx, k_yy, k_xy (1/m per m/s) per unit dvA and per unit dvB.
     - `x`, `y`, `t`: (n, 3): the maximisers (m from end A, m from the centre line, s).
     - `durations`: (1,) the contact duration (s); `flags`, `law` as in `SuperpositionTable`.
+    - Over the sphere (`rolls`, a box's drops out of the plane): n = k * k directions (dvA, dvB, dvR) of
+      `_sphere_directions`, `fields` (n, 3, 4, 3) with a third column per unit roll dvR; a drop takes the largest
+      measure at the maximisers of the four grid directions around its own, and, where `mirrors` says the plate
+      is its own mirror image in x or y, at their mirror images too.
 
     The principal strain and stress are homogeneous of degree 1 in the jumps, so each direction's peak scales with
     |(dvA, dvB)|, and a drop's peak is the larger value of the measure at the maximisers of the two table directions
@@ -190,13 +194,23 @@ class PlateTable(eqx.Module):
     durations: Float[Array, " 1"]
     flags: Int[Array, ""]
     law: str = eqx.field(static=True, default="poisson")
+    mirrors: tuple = eqx.field(static=True, default=(False, False))
 
     @property
     def n_angles(self) -> int:
         return int(self.fields.shape[0])
 
+    @property
+    def rolls(self) -> bool:
+        """Whether the table spans jumps with a roll across the width (a sphere of directions; `superposition_table`
+        with `rolls=True`) rather than plane drops (a circle)."""
+        return self.fields.shape[-1] == 3
+
     def peaks(self, plate: Plate, jumps: Float[Array, "2"]) -> Float[Array, "3"]:
-        """(peak principal stress (Pa), strain (-), deflection (m)) of `plate` for support jumps (dvA, dvB) (m/s)."""
+        """(peak principal stress (Pa), strain (-), deflection (m)) of `plate` for support jumps (dvA, dvB) (m/s), or
+        (dvA, dvB, dvR) on a table that `rolls`."""
+        if self.rolls:
+            return self._sphere_peaks(plate, jumps)
         n = self.n_angles
         dvA, dvB = jumps[0], jumps[1]
         j = jnp.clip(jnp.floor(_pseudo_angle(dvA, dvB) * (n / 2)), 0, n - 1).astype(jnp.int32)
@@ -214,6 +228,33 @@ class PlateTable(eqx.Module):
                                         for d in range(2)))
                           for q, quantity in enumerate(PLATE_QUANTITIES)])
 
+    def _sphere_peaks(self, plate: Plate, jumps):
+        """`peaks` over the sphere: the largest measure at the maximisers of the four grid directions around the
+        jump's own (`_sphere_cell`)."""
+        n = int(round(np.sqrt(self.n_angles)))
+        i, j = _sphere_cell(jumps, n)
+        rows = self.fields.reshape(n * n, -1)
+        zero = jnp.zeros_like(i)
+        blocks = [jax.lax.dynamic_slice(rows, ((i + di) * n + j, zero), (2, rows.shape[1])) for di in (0, 1)]
+
+        # On a mirror-symmetric plate a direction's peak sits at its maximiser or at the maximiser's mirror image
+        # (pure roll has two, at either long edge): the measures there are the maximiser's own at the mirrored
+        # jumps, (dvB, dvA, dvR) for x -> L - x and (dvA, dvB, -dvR) for y -> -y (k_xy's sign does not count).
+        a, b, c = jumps[0], jumps[1], jumps[2]
+        images = [(a, b, c)]
+        if self.mirrors[0]:
+            images.append((b, a, c))
+        if self.mirrors[1]:
+            images += [(u, v, -w) for u, v, w in images]
+
+        def value(block, d, q, k, jump):
+            col = (q * 4 + k) * 3
+            return block[d, col] * jump[0] + block[d, col + 1] * jump[1] + block[d, col + 2] * jump[2]
+
+        return jnp.stack([functools.reduce(jnp.maximum, [
+            PLATE_MEASURES[quantity](plate, *(value(block, d, q, k, jump) for k in range(4)))
+            for block in blocks for d in range(2) for jump in images]) for q, quantity in enumerate(PLATE_QUANTITIES)])
+
     def outside(self, duration) -> Array:
         """`Flag.OUTSIDE_TABLE` where a contact `duration` (s) is not the table's."""
         return flag_if(jnp.abs(duration - self.durations[0]) > 1e-9 * self.durations[0], Flag.OUTSIDE_TABLE)
@@ -223,7 +264,7 @@ class PlateTable(eqx.Module):
         (dvA, dvB, dvR) (m/s), and the `Flag` mask: `flags`, with `Flag.OUTSIDE_TABLE` where the roll dvR is not 0
         (the table spans plane drops) and `Flag.OUTSIDE_THEORY` where the plate deflects beyond small rotations, as
         `simulate` flags it; NaN where the mask is not 0."""
-        if jumps.shape[-1] > 2:
+        if jumps.shape[-1] > 2 and not self.rolls:
             flags = combine(flags, flag_if(jumps[2] != 0, Flag.OUTSIDE_TABLE))
         values = self.peaks(board, jumps)
         flags = combine(flags, response_flags(board, values[2]))
@@ -236,43 +277,119 @@ class PlateTable(eqx.Module):
         return self.response(scene.board, jumps, scene.contact.duration, flags)
 
 
+def _sphere_directions(n: int) -> np.ndarray:
+    """The (n * n, 3) jump directions (dvA, dvB, dvR) of a `PlateTable` over the sphere: the nodes of an n x n grid
+    over the square (s, u) in [-1, 1]^2, which maps onto the diamond |p| + |q| <= 1 by p = (s + u) / 2,
+    q = (s - u) / 2, and that onto the half sphere of roll >= 0 by (p, q, 1 - |p| - |q|) (an octahedral map:
+    no trigonometry to find a drop's cell)."""
+    s, u = (v.ravel() for v in np.meshgrid(np.linspace(-1, 1, n), np.linspace(-1, 1, n), indexing="ij"))
+    p, q = (s + u) / 2, (s - u) / 2
+    return np.stack([p, q, 1.0 - np.abs(p) - np.abs(q)], axis=-1)
+
+
+def _sphere_sources(n: int, x_mirror: bool, y_mirror: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                        np.ndarray]:
+    """Which nodes of `_sphere_directions(n)` the build searches, and how the others follow from them by the
+    plate's mirror symmetries. x -> L - x swaps the end supports: direction (a, b, c) -> (b, a, c), node (i, j) ->
+    (i, n - 1 - j). y -> -y turns the roll: (a, b, c) -> (a, b, -c), one peak with (-a, -b, c), node (i, j) ->
+    (n - 1 - i, n - 1 - j).
+
+    **Returns:** `(searched, source, x_flip, y_flip)`: the searched node indices, and for each of the n * n rows
+    the position in `searched` it comes from and the mirrors that carry it there."""
+    i, j = np.divmod(np.arange(n * n), n)
+    options = [(False, False)] + [(fx, fy) for fx, fy in ((True, False), (False, True), (True, True))
+                                  if (x_mirror or not fx) and (y_mirror or not fy)]
+
+    def image(fx, fy):
+        ii = np.where(fy, n - 1 - i, i)
+        jj = np.where(fx != fy, n - 1 - j, j)  # both mirrors turn j twice
+        return ii * n + jj
+
+    images = np.stack([image(fx, fy) for fx, fy in options])  # (ops, n * n)
+    pick = np.argmin(images, axis=0)  # each node's representative: its smallest image
+    canonical = images[pick, np.arange(n * n)]
+    searched = np.unique(canonical)
+    ops = np.array(options)[pick]
+    return searched, np.searchsorted(searched, canonical), ops[:, 0], ops[:, 1]
+
+
+def _sphere_cell(jumps, n: int):
+    """The grid cell (i, j) of `_sphere_directions(n)` that holds the direction of `jumps` (dvA, dvB, dvR), folded
+    onto roll >= 0 (a jump and its negative have one peak)."""
+    a, b, c = jumps[0], jumps[1], jumps[2]
+    flip = c < 0
+    a, b, c = (jnp.where(flip, -v, v) for v in (a, b, c))
+    norm = jnp.abs(a) + jnp.abs(b) + c
+    norm = jnp.where(norm > 0, norm, 1.0)
+    p, q = a / norm, b / norm
+    cell = lambda v: jnp.clip(jnp.floor((v + 1.0) * (0.5 * (n - 1))), 0, n - 2).astype(jnp.int32)  # noqa: E731
+    return cell(p + q), cell(p - q)
+
+
 @filter_jit
-def _build_plate(plate: Plate, duration, numerics: Numerics, n_angles: int, symmetric: bool):
-    """`PlateTable` contents: the unit-jump fields on the search grid once, each direction's measures as their
-    combination, then each direction's refinement; for a mirror-symmetric plate (`symmetric`) half the
-    directions, the others by the mirror (`_mirror_sources`; x -> L - x also turns the sign of k_xy)."""
+def _build_plate(plate: Plate, duration, numerics: Numerics, directions, columns: int):
+    """`PlateTable` contents at the jump `directions` (k, columns) (unnormalised): the unit-jump fields on the
+    search grid once, each direction's measures as their combination, then each direction's refinement.
+    `columns` (static): 2 for plane drops (dvA, dvB), 3 with the roll across the width."""
     S = _setup(plate, HalfSine(1.0, 0.0, duration), numerics, with_check=False)
     modes = S.modes
     mask = (S.k <= S.used).astype(float_dtype())
-    unit = support_participation(modes, mask.shape[0])[:, :2] * mask[:, None]  # plane drops: no roll
+    unit = support_participation(modes, mask.shape[0])[:, :columns] * mask[:, None]
     _, R = S.Q
     _, _, _, shapes = _plate_points(plate, modes)
-    G = jnp.stack([jnp.stack([(v * unit[:, c]) @ R.T for v in shapes]) for c in range(2)])  # (2, 4, points, nt)
+    G = jnp.stack([jnp.stack([(v * unit[:, c]) @ R.T for v in shapes]) for c in range(columns)])  # (C, 4, pts, nt)
     omega, zeta = S.modal.omega, S.modal.zeta
 
-    def direction(p):
-        d = _direction(p)
+    def direction(d):
         beta = unit @ d
         D = S._replace(modal=eqx.tree_at(lambda modal: modal.beta, S.modal, beta[None]), Q=(beta, R))
-        components = d[0] * G[0] + d[1] * G[1]
+        components = jnp.tensordot(d, G, axes=1)
         found = _plate_searches(D, plate, numerics, modes, PLATE_QUANTITIES, mask, fields=components)
         response = unit_response(found.t[:, None], omega, zeta, duration)  # (3, M)
         at = modes.shapes(found.x, found.y)  # 4 x (3, M)
-        fields = jnp.stack([(v * response) @ unit for v in at], axis=1)  # (3, 4, 2)
+        fields = jnp.stack([(v * response) @ unit for v in at], axis=1)  # (3, 4, C)
         return fields, found.x, found.y, found.t
 
+    fields, x, y, t = jax.lax.map(direction, directions, batch_size=_BUILD_BATCH)
+    return fields, x, y, t, combine(plate.flags(), flag_if(S.failed, Flag.SOLVER_FAILED))
+
+
+def _plane_plate_table(plate: Plate, duration, numerics: Numerics, n_angles: int, symmetric: bool):
+    """A plane drops' `PlateTable` contents (n_angles pseudo-angles); for a mirror-symmetric plate (`symmetric`)
+    half the directions are searched, the others by the mirror (`_mirror_sources`; x -> L - x also turns the sign
+    of k_xy)."""
     if symmetric:
         searched, source, mirrored = _mirror_sources(n_angles)
     else:
         searched = source = np.arange(n_angles)
         mirrored = np.zeros(n_angles, dtype=bool)
     pseudo = jnp.asarray(searched * (2.0 / n_angles), dtype=float_dtype())
-    fields, x, y, t = (v[source] for v in jax.lax.map(direction, pseudo, batch_size=_BUILD_BATCH))
+    fields, x, y, t, flags = _build_plate(plate, duration, numerics, jax.vmap(_direction)(pseudo), 2)
+    fields, x, y, t = (v[source] for v in (fields, x, y, t))
     flip = jnp.asarray(mirrored)
     image = fields[..., ::-1] * jnp.asarray([1.0, 1.0, 1.0, -1.0])[:, None]  # supports swapped, k_xy turned
     fields = jnp.where(flip[:, None, None, None], image, fields)
     x = jnp.where(flip[:, None], plate.length - x, x)
-    return fields, x, y, t, combine(plate.flags(), flag_if(S.failed, Flag.SOLVER_FAILED))
+    return fields, x, y, t, flags
+
+
+def _sphere_plate_table(plate: Plate, duration, numerics: Numerics, n: int):
+    """A `PlateTable` over the sphere (`_sphere_directions(n)`): the directions a mirror-symmetric plate does not
+    need searched (`_sphere_sources`) are the mirror images of those it does. Returns (fields, x, y, t, flags)."""
+    searched, source, x_flip, y_flip = _sphere_sources(n, plate.mirror_symmetric("x"), plate.mirror_symmetric("y"))
+    directions = jnp.asarray(_sphere_directions(n)[searched], dtype=float_dtype())
+    fields, x, y, t, flags = _build_plate(plate, duration, numerics, directions, 3)
+    fields, x, y, t = (v[source] for v in (fields, x, y, t))
+    k_xy = jnp.asarray([1.0, 1.0, 1.0, -1.0])[:, None]  # (4 components, 1)
+    # x -> L - x: the end supports' columns swap and k_xy turns; y -> -y: k_xy turns, and the roll's column turns
+    # with the plate (its field is odd in y, k_xy of it even).
+    x_image = fields[..., jnp.array([1, 0, 2])] * k_xy
+    fields = jnp.where(jnp.asarray(x_flip)[:, None, None, None], x_image, fields)
+    y_image = fields * k_xy * jnp.asarray([1.0, 1.0, -1.0])
+    fields = jnp.where(jnp.asarray(y_flip)[:, None, None, None], y_image, fields)
+    x = jnp.where(jnp.asarray(x_flip)[:, None], plate.length - x, x)
+    y = jnp.where(jnp.asarray(y_flip)[:, None], -y, y)
+    return fields, x, y, t, flags
 
 
 def _drop_jumps(scene: Scene, law: str, from_rest: bool = False):
@@ -482,15 +599,24 @@ def table_numerics(scene: Scene, durations=None) -> Numerics:
     return Numerics(n_modes=int(used), points_per_period=6, x_points_per_mode=6, candidates=6, newton_steps=2)
 
 
+SPHERE_NODES = 33
+"""Grid nodes along each side of a `PlateTable` over the sphere of jump directions (33 x 33 = 1089 searches)."""
+
+
 def superposition_table(scene: Scene, numerics: Numerics | None = None, n_angles: int | None = None,
-                        durations=None, n_durations: int = DURATION_NODES) -> SuperpositionTable:
+                        durations=None, n_durations: int = DURATION_NODES, rolls: bool = False,
+                        sphere_nodes: int = SPHERE_NODES) -> SuperpositionTable:
     """The `SuperpositionTable` of `scene`'s board: the peak search of `numerics` (default
     `table_numerics(scene, durations)`; closed form, one impact) at `n_angles` jump directions (a multiple of 4,
     >= 8), searching n_angles / 2 + 2 of them and mirroring the rest.
 
     With `durations=(shortest, longest)` (s) the table spans contact durations from `shortest` to `longest` at
     `n_durations` evenly spaced durations (>= 2), for drops whose contact duration varies; otherwise it holds the
-    scene's one duration."""
+    scene's one duration.
+
+    `rolls` (a plate, one duration): the table spans jumps with a roll across the width (dvA, dvB, dvR), a box's
+    drops out of the plane, over a `sphere_nodes` x `sphere_nodes` grid of directions on the half sphere
+    (`_sphere_directions`), instead of plane drops."""
     if n_angles is None:
         n_angles = 256 if durations is None else 128
     if durations is None:
@@ -513,8 +639,17 @@ def superposition_table(scene: Scene, numerics: Numerics | None = None, n_angles
     if not (isinstance(n_angles, int) and n_angles >= 8 and n_angles % 4 == 0):
         raise ValueError(f"n_angles = {n_angles!r}; valid: a multiple of 4, >= 8 (the build uses the board's mirror "
                          "symmetry over quarters of the pseudo-angle)")
+    if rolls and not (scene.board.SURFACE and durations is None):
+        raise ValueError("rolls=True spans a plate's jumps with a roll across the width at one contact duration; a "
+                         "beam has no roll input, and durations must be None")
+    if rolls:
+        as_int(sphere_nodes, "sphere_nodes", 3, 257)
+    if scene.board.SURFACE and rolls:
+        fields, x, y, t, flags = _sphere_plate_table(scene.board, nodes[0], numerics, sphere_nodes)
+        mirrors = (scene.board.mirror_symmetric("x"), scene.board.mirror_symmetric("y"))
+        return PlateTable(fields, x, y, t, nodes, flags, law=numerics.law, mirrors=mirrors)
     if scene.board.SURFACE:  # the table follows the board's domain (a surface: one measure per quantity)
-        fields, x, y, t, flags = _build_plate(scene.board, nodes[0], numerics, n_angles,
-                                              scene.board.mirror_symmetric())
+        fields, x, y, t, flags = _plane_plate_table(scene.board, nodes[0], numerics, n_angles,
+                                                    scene.board.mirror_symmetric())
         return PlateTable(fields, x, y, t, nodes, flags, law=numerics.law)
     return SuperpositionTable(nodes, *_build(scene.board, nodes, numerics, n_angles), law=numerics.law)

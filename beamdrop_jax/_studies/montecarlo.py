@@ -429,7 +429,10 @@ def montecarlo(
       random drops with durations uniform on [0.2, 1] ms; up to 3.4e-3 on a clamped board, whose peak can move
       to another clamp or time between two table durations (tests/test_montecarlo.py). A plate's table
       (`PlateTable`) holds one contact duration: the JESD22 board's peaks within 4.9e-4 of a dense per-drop
-      search, about 1.2 million drops/s on 2 cores (`beamdrop bench`). Default numerics:
+      search, about 1.2 million drops/s on 2 cores (`beamdrop bench`). A box tilted or moving out of the plane
+      rolls a plate's supports across its width: its table spans the sphere of jump directions (dvA, dvB, dvR;
+      `superposition_table(..., rolls=True)`, 33 x 33 directions, a quarter of them searched on a plate that is
+      its own mirror image in x and y), within 1e-3 of a dense search (the deflection 3e-3). Default numerics:
       `table_numerics(scene, durations)`.
     - **direct** (`superpose=False`; the only way when `Numerics.max_impacts` > 1, for the diffrax method, when
       sampled durations reach 0, or vary on a plate): each drop runs its own peak search, exactly as `simulate(drop, numerics)`
@@ -479,10 +482,12 @@ def montecarlo(
             scene, durations = scene.replace(**{"contact.duration": durations[0]}), None
         else:
             cannot = superposes(Numerics() if numerics is None else numerics, scene.board, durations)
-    if cannot is None and scene.board.SURFACE and scene.housing.is_box and (
-            box_only or np.any(np.asarray(scene.drop.tilt)) or not np.all(scene.drop.in_plane())):
-        cannot = ("a box tilted or moving out of the plane rolls a plate's supports across its width, which a "
-                  "plate's table (plane drops) does not span")
+    # A box tilted or moving out of the plane rolls a plate's supports across its width: a table over the sphere.
+    rolls = bool(scene.board.SURFACE and scene.housing.is_box and (
+        box_only or np.any(np.asarray(scene.drop.tilt)) or not np.all(scene.drop.in_plane())))
+    if cannot is None and rolls and durations is not None:
+        cannot = ("a plate's table over the sphere of jump directions (a box's drops out of the plane) holds one "
+                  "contact duration")
     if superpose and cannot:
         raise ValueError(f"montecarlo(superpose=True) needs one pulse for every drop, but {cannot}")
     superpose = cannot is None if superpose is None else bool(superpose)
@@ -493,7 +498,7 @@ def montecarlo(
         raise ValueError(f"batch_size = {batch_size!r}; valid: an int >= 1")
     if superpose:
         numerics = table_numerics(scene, durations) if numerics is None else numerics
-        table = superposition_table(scene, numerics, durations=durations)
+        table = superposition_table(scene, numerics, durations=durations, rolls=rolls)
         batch = min(n, 65536) if batch_size is None else int(batch_size)
         inner = n_dev
         evaluate = lambda chunk, axes: table_peaks(table, chunk, axes, from_rest)  # noqa: E731
