@@ -45,8 +45,8 @@ from ._impact.clatter import (
     impact_sequence as impact_sequence,
     next_contact as next_contact,
 )
-from ._impact.landing import Landing as Landing, compliant_landing as compliant_landing
-from ._impact.box_landing import BoxLanding as BoxLanding
+from ._impact.landing import Landing as Landing
+from ._impact.box_landing import BoxLanding as BoxLanding, compliant_landing as compliant_landing
 from ._impact.motion import HalfSine as HalfSine, Impulse as Impulse, PulseTrain as PulseTrain, Record as Record
 from ._impact.motion import LandingMotion as LandingMotion
 from ._response.landing_path import LandingHistories as LandingHistories, landing_histories as landing_histories

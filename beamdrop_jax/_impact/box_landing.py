@@ -35,7 +35,11 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from .box import box_vertices
-from .landing import _FORGET_RATE, _LAMBDA0, _NU, _NU_WARP, E_MIN, _flags, _over_times, _solve, _state_at
+import numpy as np
+
+from .._common.checks import GRAVITY, as_float, is_concrete
+from .landing import (_FORGET_RATE, _LAMBDA0, _NU, _NU_WARP, E_MIN, _check_eagerly, _flags, _over_times, _solve,
+                      _state_at, plane_landing)
 
 _N = 8  # vertices
 _D, _DMAX, _P, _TC, _TL = 13, 21, 29, 53, 61  # where each vertex block starts in the state
@@ -263,3 +267,44 @@ def box_landing(W, H, D, m, moments, mu, e, tau, orientation, tilt, v, w, g, v_e
                       contact_time=y_end[_TC:_TL] * model.T, loading_time=y_end[_TL:_T3] * model.T,
                       energy_change=energy, separated=separated, steps=sol.stats["num_accepted_steps"], flags=flags,
                       model=model, solution=sol, attitude=Rot, v0=v, w0=w, gravity=g)
+
+
+def compliant_landing(housing, contact, orientation, velocity, spin, *, tilt=0.0, v_eps=None, gravity=GRAVITY,
+                      t_max=None, until=None, rtol: float = 1e-10, atol: float = 1e-10, max_steps: int = 4096):
+    """Compliant landing of `housing` (a `Housing`) on the ground with `contact` (a `Contact`), from the first touch.
+
+    - A plane section: its four corners, at `orientation` (rad), G moving at `velocity` (vx, vy) (m/s) and spinning
+      at `spin` w (rad/s): a `Landing` (the model and the keywords: `plane_landing`, `landing.py`'s notes).
+    - A box (`Housing.depth`): its eight vertices, turned by `tilt` (rad) after `orientation` (`bd.box_attitude`),
+      with `velocity` (vx, vy, vz) and `spin` (wx, wy, wz) in the ground frame: a `BoxLanding` (the same contact
+      at every vertex).
+
+    Traceable: under `jit`, `vmap` and `grad` problems come back as `flags`."""
+    keywords = dict(v_eps=v_eps, gravity=gravity, t_max=t_max, until=until, rtol=rtol, atol=atol,
+                    max_steps=max_steps)
+    if not housing.is_box:
+        if is_concrete(tilt) and np.any(np.asarray(tilt) != 0):
+            raise ValueError("tilt turns a box housing: give Housing.depth (m), or leave tilt = 0 for the plane "
+                             "section")
+        return plane_landing(housing, contact, orientation, velocity, spin, **keywords)
+    h = housing
+    args = [as_float(v, name) for v, name in (
+        (h.width, "housing.width"), (h.height, "housing.height"), (h.mass, "housing.mass"),
+        (h.moments, "housing.moments"), (contact.friction, "contact.friction"),
+        (contact.restitution, "contact.restitution"), (contact.duration, "contact.duration"),
+        (orientation, "orientation"), (velocity, "velocity"), (spin, "spin"), (gravity, "gravity"))]
+    W, H, m, moments, mu, e, tau, theta, v, w, g = args
+    if v.shape != (3,) or w.shape != (3,):
+        raise ValueError(f"a box's velocity (vx, vy, vz) (m/s) and spin (wx, wy, wz) (rad/s) are 3-vectors in the "
+                         f"ground frame; got shapes {v.shape} and {w.shape}")
+    v_eps = jnp.asarray(jnp.nan) if v_eps is None else as_float(v_eps, "v_eps")  # NaN: the default
+    t_max = jnp.asarray(jnp.nan) if t_max is None else as_float(t_max, "t_max")
+    if until is not None:
+        t_max = as_float(until, "until")
+    tilt = as_float(tilt, "tilt")
+    if is_concrete(args, v_eps, t_max, tilt):
+        _check_eagerly(W, H, m, moments, mu, e, tau, theta, v, w, g, v_eps, t_max)
+        if not np.isfinite(float(tilt)):
+            raise ValueError("tilt must be finite")
+    return box_landing(W, H, as_float(h.depth, "housing.depth"), m, moments, mu, e, tau, theta, tilt, v, w, g,
+                       v_eps, t_max, rtol=rtol, atol=atol, max_steps=max_steps, through=until is not None)

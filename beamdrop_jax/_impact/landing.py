@@ -393,7 +393,7 @@ def _over_times(fn, t):
     return out.reshape(t.shape + out.shape[1:])
 
 
-def compliant_landing(
+def plane_landing(
     housing,
     contact,
     orientation,
@@ -407,16 +407,11 @@ def compliant_landing(
     rtol: float = 1e-10,
     atol: float = 1e-10,
     max_steps: int = 4096,
-    tilt=0.0,
-):
-    """Compliant landing of `housing` (a `Housing`) on the ground with `contact` (a `Contact`: friction mu,
-    restitution e, duration tau > 0), from the first touch: the lowest corner at y = 0, the housing at
+) -> Landing:
+    """Compliant landing of a plane section `housing` (a `Housing`; `compliant_landing` takes a box too) on the
+    ground with `contact` (a `Contact`: friction mu, restitution e, duration tau > 0), from the first touch: the lowest corner at y = 0, the housing at
     `orientation` theta (rad), G moving at `velocity` (vx, vy) (m/s) and spinning at `spin` w (rad/s). The model is
     in this module's docstring.
-
-    A box housing (`Housing.depth`) lands on its eight vertices, turned by `tilt` (rad) after `orientation`
-    (`bd.box_attitude`), with `velocity` (vx, vy, vz) and `spin` (wx, wy, wz) in the ground frame: a
-    `BoxLanding` (the same contact model at every vertex).
 
     **Keywords:** `v_eps`: the friction's regularising speed (m/s; default 1e-3 V, V = sqrt(|v|^2 + (w R)^2)).
     `gravity` (m/s^2; 0 isolates the contact). `t_max`: time bound (s; default 10 tau). `until`: integrate to this
@@ -437,10 +432,6 @@ def compliant_landing(
     t_max = jnp.asarray(jnp.nan) if t_max is None else as_float(t_max, "t_max")
     if until is not None:
         t_max = as_float(until, "until")
-    if h.is_box:
-        return _box(h, contact, args, v_eps, t_max, as_float(tilt, "tilt"), until is not None, rtol, atol, max_steps)
-    if is_concrete(tilt) and np.any(np.asarray(tilt) != 0):
-        raise ValueError("tilt turns a box housing: give Housing.depth (m), or leave tilt = 0 for the plane section")
     if args[8].shape != (2,):
         raise ValueError(f"velocity must be a pair (vx, vy), m/s; got shape {args[8].shape}")
     if is_concrete(args, v_eps, t_max):
@@ -448,22 +439,6 @@ def compliant_landing(
         return _landing_program(*args, v_eps, t_max, rtol=rtol, atol=atol, max_steps=max_steps,
                                 through=until is not None)
     return _landing(*args, v_eps, t_max, rtol=rtol, atol=atol, max_steps=max_steps, through=until is not None)
-
-
-def _box(h, contact, args, v_eps, t_max, tilt, through, rtol, atol, max_steps):
-    """`compliant_landing` of a box housing: `box_landing` on checked arrays."""
-    from .box_landing import box_landing  # the box's model builds on this module's
-
-    W, H, m, _, mu, e, tau, theta, v, w, g = args
-    if v.shape != (3,) or w.shape != (3,):
-        raise ValueError(f"a box's velocity (vx, vy, vz) (m/s) and spin (wx, wy, wz) (rad/s) are 3-vectors in the "
-                         f"ground frame; got shapes {v.shape} and {w.shape}")
-    if is_concrete(args, v_eps, t_max, tilt):
-        _check_eagerly(*args, v_eps, t_max)
-        if not np.isfinite(float(tilt)):
-            raise ValueError("tilt must be finite")
-    return box_landing(W, H, as_float(h.depth, "housing.depth"), m, h.moments, mu, e, tau, theta, tilt, v, w, g,
-                       v_eps, t_max, rtol=rtol, atol=atol, max_steps=max_steps, through=through)
 
 
 def _check_eagerly(W, H, m, I, mu, e, tau, theta, v, w, g, v_eps, t_max):
