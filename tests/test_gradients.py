@@ -27,8 +27,9 @@ ZERO_SCALE = {
 }
 
 
-# A plane section refuses a tilt or a depth offset (tests/test_box_drops.py differentiates them on a box).
-BOX_ONLY = ("drop.tilt", "placement.depth_offset")
+# A plane section refuses a tilt, a depth offset or motion out of the plane (tests/test_box_drops.py differentiates the
+# tilt on a box).
+BOX_ONLY = ("drop.tilt", "placement.depth_offset", "drop.side_speed", "drop.spin_x", "drop.spin_y")
 
 
 def _scales(scene):

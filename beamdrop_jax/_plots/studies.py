@@ -159,6 +159,7 @@ def plot_montecarlo(result, *, limit=None, quantity: str = "stress", axes=None, 
     import matplotlib.pyplot as plt
 
     names = {name: (what, unit.strip(), scale) for name, (what, unit, scale) in SHOWN_FIELDS.items()}
+    names["height"] = ("drop height", "m", 1.0)  # an axis label alone: "height" of what
     paths = {name: path.split(".")[0] for name, path in SAMPLED_FIELDS.items()}
     valid = np.asarray(result.valid)
     n = valid.shape[0]
