@@ -226,7 +226,9 @@ def compliant_landing_reference(W, H, m, I, theta, v, w, mu, e, tau, v_eps, g=9.
     first touch, and friction -mu N u / sqrt(u^2 + v_eps^2) opposes its horizontal velocity u. Gravity g.
 
     Each corner is in one of four phases: `free` (no memory), `load` (N = k d), `unload` (on the unloading line),
-    `released` (N = 0 but still below the ground, memory kept). Between phase changes the equations are smooth and
+    `released` (N = 0 but still below the ground: the set d_p = (1 - e^2) d_max relaxes onto the corner,
+    d(d_p)/dt = -r (d_p - d), r = 300 / tau, its rate in d_max taken at 1 - e^2 >= 1e-3). Between phase changes the
+    equations are smooth and
     `solve_ivp` (DOP853) integrates them; the changes are events: free -> load when the corner reaches the ground;
     load -> unload when its penetration stops growing (d_max = that penetration); unload -> released at d = d_p;
     unload -> load at d = d_max; released -> unload at d = d_p (coming back down); released -> free at the ground.
@@ -251,10 +253,11 @@ def compliant_landing_reference(W, H, m, I, theta, v, w, mu, e, tau, v_eps, g=9.
     k = w1**2 / (1 / m + r0[:, 0] ** 2 / I)
     ku = k / e**2
     # state: X, Y (G's displacement), vx, vy, theta, w, Pt (4), Pn (4)
-    y = np.concatenate([[0.0, 0.0, v[0], v[1], theta, w], np.zeros(8)])
+    # state: X, Y (G's displacement), vx, vy, theta, w, Pt (4), Pn (4), d_max (4)
+    y = np.concatenate([[0.0, 0.0, v[0], v[1], theta, w], np.zeros(12)])
     V = math.hypot(math.hypot(v[0], v[1]), w * math.hypot(W, H) / 2)
     L = V * tau
-    scale = np.concatenate([[L, L, V, V, L / math.hypot(W, H), V / math.hypot(W, H)], np.full(8, m * V)])
+    scale = np.concatenate([[L, L, V, V, L / math.hypot(W, H), V / math.hypot(W, H)], np.full(8, m * V), np.full(4, L)])
     t_max = 10 * tau if t_max is None else t_max
 
     def kin(y):
@@ -264,13 +267,13 @@ def compliant_landing_reference(W, H, m, I, theta, v, w, mu, e, tau, v_eps, g=9.
         return r, d, -vel[:, 1], vel[:, 0]
 
     phase = ["free"] * 4
-    dmax = np.zeros(4)
+    s_set, r_set = 1 - e**2, 300.0 / tau
     _, d, drate, _ = kin(y)
     for i in range(4):
         if d[i] >= 0 and drate[i] > 0:
             phase[i] = "load"
 
-    def normal(d, dp):
+    def normal(d, dp):  # dp: the sets (1 - e^2) d_max
         N = np.zeros(4)
         for i in range(4):
             if phase[i] == "load":
@@ -281,11 +284,14 @@ def compliant_landing_reference(W, H, m, I, theta, v, w, mu, e, tau, v_eps, g=9.
 
     def rhs(t, y):
         r, d, _, u = kin(y)
-        N = normal(d, (1 - e**2) * dmax)
+        dmax = y[14:18]
+        N = normal(d, s_set * dmax)
         Ft = -mu * N * u / np.sqrt(u * u + v_eps**2)
         ax, ay = Ft.sum() / m, N.sum() / m - g
         alpha = np.sum(r[:, 0] * N - r[:, 1] * Ft) / I
-        return np.concatenate([[y[2], y[3], ax, ay, y[5], alpha], Ft, N])
+        ddmax = np.array([-r_set * (s_set * dmax[i] - d[i]) / max(s_set, 1e-3) if phase[i] == "released" else 0.0
+                          for i in range(4)])
+        return np.concatenate([[y[2], y[3], ax, ay, y[5], alpha], Ft, N, ddmax])
 
     def events_now():
         """(function, corner, new phase) for every phase change possible from the current phases."""
@@ -294,8 +300,8 @@ def compliant_landing_reference(W, H, m, I, theta, v, w, mu, e, tau, v_eps, g=9.
         def make(i, kind, direction):
             def fn(t, y):
                 _, d, drate, _ = kin(y)
-                dp = (1 - e**2) * dmax[i]
-                return {"d": d[i], "rate": drate[i], "dp": d[i] - dp, "dmax": d[i] - dmax[i]}[kind]
+                dp = s_set * y[14 + i]
+                return {"d": d[i], "rate": drate[i], "dp": d[i] - dp, "dmax": d[i] - y[14 + i]}[kind]
 
             fn.terminal, fn.direction = True, direction
             return fn
@@ -318,9 +324,9 @@ def compliant_landing_reference(W, H, m, I, theta, v, w, mu, e, tau, v_eps, g=9.
     def change(i, new, d, t):
         """Corner i enters phase `new` at time t (penetrations d)."""
         if phase[i] == "load" and new == "unload":
-            dmax[i] = d[i]
+            y[14 + i] = d[i]
         if new == "free":
-            dmax[i] = 0.0
+            y[14 + i] = 0.0
         if new in ("load", "unload") and start[i] is None:
             start[i] = t
         if new in ("released", "free") and start[i] is not None:
@@ -338,14 +344,14 @@ def compliant_landing_reference(W, H, m, I, theta, v, w, mu, e, tau, v_eps, g=9.
             break
         hits = [(sol.t_events[j][0], j) for j in range(len(evs)) if len(sol.t_events[j])]
         t_ev, j = min(hits)
-        t, y = t_ev, sol.y_events[j][0]
+        t, y = t_ev, sol.y_events[j][0].copy()
         _, d, drate, _ = kin(y)
         change(evs[j][1], evs[j][2], d, t)
         # Other corners whose change falls at the same instant (a flat landing's two corners, to round-off): an
         # event function that starts at zero would not be seen to cross it.
         tol_d, tol_v = 1e-9 * L, 1e-9 * V
         for i in range(4):
-            dp = (1 - e**2) * dmax[i]
+            dp = s_set * y[14 + i]
             if phase[i] == "load" and drate[i] <= tol_v:
                 change(i, "unload", d, t)
             elif phase[i] == "unload" and d[i] - dp <= tol_d and drate[i] < 0:

@@ -44,13 +44,11 @@ def test_auto_is_continuous_through_a_flat_landing_on_a_beam(auto_sweep):
     assert abs(stress[1] / flat - 1) < 2e-3
     assert abs(stress[2] / flat - 1) < 1e-2
     # No step over 5 % per 0.05 deg, through the blend to the rigid law (weight 1 up to 1.6 deg, 0.55 at 3 deg),
-    # but one: at 1.83 deg a corner's grazing return steps the peak by 6.8 % (the hysteretic contact keeps its
-    # set when a corner turns back before clearing the ground; the landing module's notes).
+    # and through 1.83 deg, where a corner rebounds free of force and turns back just below or just above the
+    # ground (its set follows it up, so both meet force at once).
     sweep, peaks = degrees[2:], stress[2:]
     steps = np.abs(np.diff(peaks) / peaks[:-1])
-    grazing = np.isclose(sweep[1:], 1.85)
-    assert steps[~grazing].max() < 0.05, (sweep[1:][~grazing][np.argmax(steps[~grazing])], steps[~grazing].max())
-    assert steps[grazing].max() < 0.08
+    assert steps.max() < 0.05, (sweep[1:][np.argmax(steps)], steps.max())
     assert weight[0] == 1.0 and weight[-1] < 0.6 and np.all(np.diff(weight[2:]) <= 0)
     # simulate's eager "auto" takes the same path where the landing counts.
     for i in (0, 1, 20):

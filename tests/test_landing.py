@@ -269,14 +269,15 @@ def test_energy_never_grows_and_nothing_is_nan(cases):
 def test_gradient_matches_the_reference_difference_quotient():
     """d(post-landing vertical velocity)/d(inputs) through diffrax, at the default v_eps, against central
     differences of the SciPy reference: a single corner (orientation, drift, spin, duration, restitution,
-    friction; 1e-8 to 1e-6 measured) and a near-flat landing whose second corner strikes mid-contact (orientation;
-    4e-5 measured)."""
+    friction; 1e-8 to 1e-6 measured) and a near-flat landing whose second corner strikes mid-contact while the
+    first, released below the ground, turns back onto its relaxing set (orientation; 2e-5 measured)."""
     rows = [row(0.3, 0.3, -5.0, w=2.0), row(0.01, 0.3, -5.0)]
     grads = batch_grad(rows)["grad"]
     h = HOUSING
-    checks = [(0, FIELDS.index(name), 1e-5) for name in ("theta", "vx", "w", "tau", "e", "mu")]
-    checks.append((1, FIELDS.index("theta"), 1e-3))
-    for i, field, tol in checks:
+    checks = [(0, FIELDS.index(name), 1e-5, 1e-6) for name in ("theta", "vx", "w", "tau", "e", "mu")]
+    # The near-flat row's value moves with the reference's tolerance by some 1e-10 of itself: a wider step.
+    checks.append((1, FIELDS.index("theta"), 1e-3, 1e-4))
+    for i, field, tol, relative_step in checks:
         p = list(rows[i])
         p[11] = default_v_eps(p)  # held fixed: only the one input moves
 
@@ -287,7 +288,7 @@ def test_gradient_matches_the_reference_difference_quotient():
                                               q[5], q[6], q[11], q[12])
             return q[9] + ref["dv_G"][1]
 
-        step = 1e-6 * max(abs(p[field]), 1e-3 if field != FIELDS.index("tau") else 1e-4)
+        step = relative_step * max(abs(p[field]), 1e-3 if field != FIELDS.index("tau") else 1e-4)
         expected = (vy(p[field] + step) - vy(p[field] - step)) / (2 * step)
         # The default v_eps moves with the velocities: its share, d(vy)/d(v_eps) d(v_eps)/dx, is in the gradient.
         if field in (FIELDS.index("vx"), FIELDS.index("w")):

@@ -38,8 +38,8 @@ from .box import box_vertices
 import numpy as np
 
 from .._common.checks import GRAVITY, as_float, is_concrete
-from .landing import (_FORGET_RATE, _LAMBDA0, _NU, _NU_WARP, E_MIN, _check_eagerly, _flags, _over_times, _solve,
-                      _state_at, plane_landing)
+from .landing import (_FORGET_RATE, _LAMBDA0, E_MIN, _check_eagerly, _flags, _over_times, _solve, _state_at,
+                      memory_rate, plane_landing, spring_force)
 
 _N = 8  # vertices
 _D, _DMAX, _P, _TC, _TL = 13, 21, 29, 53, 61  # where each vertex block starts in the state
@@ -103,8 +103,7 @@ class _Model3(eqx.Module):
         """Force (Fx, N, Fz) per vertex (8, 3) in units of m V / T, and the kinematics."""
         Rot, o, vel, d, d_rate = self.kinematics(y)
         dmax = y[_DMAX:_P]
-        below = jnp.where(dmax > d, dmax - d, 0.0)
-        N = jnp.maximum(0.0, self.kappa * (d - (1.0 / self.e**2 - 1.0) * below))
+        N = spring_force(self.kappa, self.e, d, dmax)
         u = vel[:, jnp.array([0, 2])]
         speed = jnp.sqrt(jnp.sum(u**2, axis=-1) + self.eps**2)
         Ft = -self.mu * (N / speed)[:, None] * u
@@ -118,14 +117,10 @@ class _Model3(eqx.Module):
         w_b = y[10:13]
         inertia = 1.0 / self.mR2_I  # I / (m R^2)
         alpha = self.mR2_I * torque_body - self.L_R * jnp.cross(w_b, inertia * w_b) / inertia
-        follow = (d >= dmax - _NU) & ((d_rate > 0.0) | (d < 0.0))
-        forget = (d < 0.0) & (dmax > d + _NU)
-        ddmax = jnp.where(follow | forget, d_rate, 0.0) - jnp.where(forget, _FORGET_RATE * (dmax - d), 0.0)
+        ddmax, compressing, forgetting = memory_rate(self.e, d, dmax, d_rate)
         in_contact = jnp.where(F[:, 1] > 0.0, 1.0, 0.0)
-        compressing = jnp.where(follow & (d > 0.0), 1.0, 0.0)
         rate = jnp.concatenate([y[3:6], a, _quaternion_rate(y[6:10], w_b) * self.L_R, alpha, d_rate, ddmax,
                                 F.reshape(-1), in_contact, compressing, jnp.ones(1)])
-        forgetting = jnp.where(forget, jnp.clip((dmax - d) / _NU_WARP, 0.0, 1.0), 0.0)
         return rate * self.warp(F[:, 1], Rot, o, u, forgetting)
 
     def warp(self, N, Rot, o, u, forgetting):

@@ -24,10 +24,12 @@ of duration tau), leaves the rebound velocity e v0 and the impulse (1 + e) m_eff
 rebound when the force ends is e v0 exactly: the spring returns e^2 of the work stored, gravity's work cancels).
 d_max is reset when the corner leaves the ground: above the ground a contact's memory d_max - d decays as
 exp(-300 t / tau), below 1e-12 of itself within 0.1 tau (the event-driven reference resets it at y = 0 exactly).
-Above the ground the spring never acts, so a returning corner starts a fresh contact. A corner that rebounds free
-of force but turns back before it clears the ground keeps its set d_p and meets no force until it passes it: the
-answer then differs from a near miss's, where the set was forgotten (a grazing return; measured as a 6 % step in
-the board's peak within 0.005 deg on the default scene at 1.83 deg). Restitution below
+Above the ground the spring never acts, so a returning corner starts a fresh contact. Below the ground, free of
+force, a corner's set relaxes onto it at the same rate (d(d_p)/dt = -r (d_p - d) while d_p > d > 0): a corner
+that rebounds free of force and turns back before it clears the ground then meets force almost at once, as one
+that just cleared the ground does (were the set kept, the two would differ by a 6 % step in the board's peak
+within 0.005 deg, at 1.83 deg on the default scene). Both relaxations start from zero, so the equations stay
+continuous where a contact releases. Restitution below
 `E_MIN` = 0.01 is computed as 0.01 (the unloading stiffness k / e^2 must stay finite; the rebound is then 1 % of
 the approach instead of none).
 
@@ -41,7 +43,8 @@ errors O(tau) and O(v_eps / V).
 **Equations.** m dv_G/dt = sum_i (Ft_i, N_i) - m g y-hat; I_G dw/dt = sum_i (c_i - G) x (Ft_i, N_i);
 dd_i/dt = -(vertical velocity of c_i); dd_max/dt = d' while the corner loads (d >= d_max - nu, nu = 1e-12 L, and
 d' > 0) and while it is above the ground (d < 0: d_max follows d, so a contact starts with d_max = d and no switch;
-a memory d_max - d > nu left from a contact relaxes at 300 / tau), else 0; dP_i/dt = (Ft_i, N_i). The penetration
+a memory d_max - d > nu left from a contact relaxes at 300 / tau), -r (d_p - d) / (1 - e^2) while released below
+the ground (d_p > d > 0), else 0; dP_i/dt = (Ft_i, N_i). The penetration
 is a state of its own, rather than computed from G and theta, so that d and d_max integrate the very same rate
 while loading: their difference holds to round-off and the loading test cannot flip on the solver's error (which it
 does when d comes from the positions, costing hundreds of rejected steps per contact). Two more states per corner,
@@ -58,11 +61,10 @@ batches. The stiff part is the friction of a sticking corner, whose slip relaxes
 unit mass (m B1 = 1 + m y^2 / I_G), thousands per tau at the default v_eps. An explicit method's steps must stay
 below about 3 / Lambda; its error control keeps the solution stable there, but not the derivatives that reverse
 mode carries through the same steps, which grew to 1e28 in a sticking landing. So the solve runs in a warped time
-sigma, dt/dsigma = 1 / (1 + Lambda / lambda0) (lambda0 = 20 / tau; the memory's relaxation counts in Lambda too, in
-proportion below 1e-6 L),
-where no rate exceeds lambda0, with steps dsigma <= 2.5 / lambda0: stable for the solution and its derivatives, at
-about 2 / Lambda of physical time per step while sticking (some 1000 steps per tau at the default v_eps; a sliding
-or frictionless corner needs about 100). The physical time is the state's last entry; the dense solution is read at
+sigma, dt/dsigma = 1 / (1 + Lambda / lambda0) (lambda0 = 20 / tau; the memory's and the set's relaxations count in
+Lambda too, in proportion below 1e-6 L), where no rate exceeds lambda0, with steps dsigma <= 2.5 / lambda0: stable
+for the solution and its derivatives, at about 2 / Lambda of physical time per step while sticking (some 1000 steps
+per tau at the default v_eps; a sliding or frictionless corner needs about 100). The physical time is the state's last entry; the dense solution is read at
 a physical time by bisection in sigma. A smaller v_eps needs `max_steps` to match. The solve stops (a diffrax
 `Event`, at the end of the step where it holds) when the landing is over: no corner carries force and every corner
 still below the ground moves up. A corner above the ground that still approaches it then is a later impact
@@ -92,6 +94,7 @@ E_MIN = 0.01
 
 _NU = 1e-12  # margin of the loading test d >= d_max - nu, in units of L
 _NU_WARP = 1e-6  # a memory d_max - d (units of L) below which its forgetting counts in the warp in proportion
+_SET_FLOOR = 1e-3  # the smallest set fraction 1 - e^2 whose relaxation counts in full in d_max's rate
 _FORGET_RATE = 300.0  # r: above the ground a contact's memory d_max - d decays as exp(-r t / tau)
 _LAMBDA0 = 20.0  # the stiffest rate (per tau) the explicit solver meets in the warped time sigma
 _T = 30  # where the state holds the physical time
@@ -114,6 +117,39 @@ def _rotate(v, c, s):
 def _cross_z(v):
     """z x v for vectors v (..., 2)."""
     return jnp.stack([-v[..., 1], v[..., 0]], axis=-1)
+
+
+def spring_force(kappa, e, d, dmax):
+    """The hysteretic corner spring's normal force (units of `kappa`, the loading stiffness, times d): k d on the
+    loading line (d >= d_max), (k / e^2)(d - d_p) = k (d - (1 / e^2 - 1)(d_max - d)) below it, 0 below d_p."""
+    # `where`, not `maximum`: at d = d_max, the loading line, the derivative must be the loading line's.
+    below = jnp.where(dmax > d, dmax - d, 0.0)
+    return jnp.maximum(0.0, kappa * (d - (1.0 / e**2 - 1.0) * below))
+
+
+def memory_rate(e, d, dmax, d_rate):
+    """The rate of each corner's memory d_max (the module's notes), whether the corner is compressing (1.0 or 0.0:
+    on its loading line, below the ground) and how much of a relaxing memory the time warp counts (in [0, 1]).
+
+    - d_max follows d while the corner loads and while it is above the ground (so a contact starts with d_max = d,
+      with no switch); the margin nu keeps round-off from flipping the test.
+    - Free of force below the ground, the set d_p = (1 - e^2) d_max relaxes onto the corner at the rate r: a corner
+      that turns back before it clears the ground meets force (almost) at once, as one that just cleared it does.
+    - Above the ground a memory left from a contact relaxes onto d at the rate r.
+    Both relaxations start from zero, so the rate is continuous where a contact releases or a corner leaves the
+    ground's force (a jump there would be a jump of the derivatives that reverse mode does not see)."""
+    follow = (d >= dmax - _NU) & ((d_rate > 0.0) | (d < 0.0))
+    set_fraction = 1.0 - e**2
+    gap = set_fraction * dmax - d  # how far the set lies below a released corner
+    released = (d > 0.0) & (gap > 0.0)
+    forget = (d < 0.0) & (dmax > d + _NU)
+    # e -> 1 leaves no set (d_p -> 0); the floor keeps the rate finite.
+    ddmax = (jnp.where(follow | forget, d_rate, 0.0) - jnp.where(forget, _FORGET_RATE * (dmax - d), 0.0)
+             - jnp.where(released, _FORGET_RATE * gap / jnp.maximum(set_fraction, _SET_FLOOR), 0.0))
+    compressing = jnp.where(follow & (d > 0.0), 1.0, 0.0)
+    relaxing = (jnp.where(forget, jnp.clip((dmax - d) / _NU_WARP, 0.0, 1.0), 0.0)
+                + jnp.where(released, jnp.clip(gap / _NU_WARP, 0.0, 1.0), 0.0))
+    return ddmax, compressing, relaxing
 
 
 class _Model(eqx.Module):
@@ -154,10 +190,7 @@ class _Model(eqx.Module):
         corners' horizontal velocities."""
         o, d, d_rate, u_t = self.corner_state(y)
         dmax = y[10:14]
-        # k d on the loading line (d >= d_max), (k / e^2)(d - d_p) = k (d - (1 / e^2 - 1)(d_max - d)) below it.
-        # (`where`, not `maximum`: at d = d_max, the loading line, the derivative must be the loading line's.)
-        below = jnp.where(dmax > d, dmax - d, 0.0)
-        N = jnp.maximum(0.0, self.kappa * (d - (1.0 / self.e**2 - 1.0) * below))
+        N = spring_force(self.kappa, self.e, d, dmax)
         Ft = -self.mu * N * u_t / jnp.sqrt(u_t**2 + self.eps**2)
         return jnp.stack([Ft, N], axis=-1), o, d, d_rate, u_t
 
@@ -168,25 +201,19 @@ class _Model(eqx.Module):
         dmax = y[10:14]
         a = jnp.sum(F, axis=0) - jnp.stack([jnp.zeros_like(self.g), self.g])
         alpha = self.mR2_I * jnp.sum(o[:, 0] * F[:, 1] - o[:, 1] * F[:, 0])
-        # d_max follows d while the corner loads and while it is above the ground (so a contact starts with
-        # d_max = d, with no switch); the margin nu keeps round-off from flipping the test. Above the ground a
-        # memory left from a contact relaxes onto d at the rate r.
-        follow = (d >= dmax - _NU) & ((d_rate > 0.0) | (d < 0.0))
-        forget = (d < 0.0) & (dmax > d + _NU)
-        ddmax = jnp.where(follow | forget, d_rate, 0.0) - jnp.where(forget, _FORGET_RATE * (dmax - d), 0.0)
+        ddmax, compressing, forgetting = memory_rate(self.e, d, dmax, d_rate)
         # Each corner's time in contact and time loading: their rates jump where a contact starts, turns from
         # loading to unloading (the force's second derivative jumps there) or ends, so the step controller closes
         # in on those kinks instead of stepping across them (which costs accuracy and spoils derivatives).
         in_contact = jnp.where(F[:, 1] > 0.0, 1.0, 0.0)
-        compressing = jnp.where(follow & (d > 0.0), 1.0, 0.0)
         rate = jnp.concatenate([y[2:4], a, y[5:6], alpha[None], d_rate, ddmax, F[:, 0], F[:, 1], in_contact,
                                 compressing, jnp.ones(1)])
-        return rate * self.warp(F[:, 1], o, u_t, jnp.where(forget, jnp.clip((dmax - d) / _NU_WARP, 0.0, 1.0), 0.0))
+        return rate * self.warp(F[:, 1], o, u_t, forgetting)
 
     def warp(self, N, o, u_t, forgetting):
         """dt/dsigma = 1 / (1 + Lambda / lambda0), Lambda the stiff rates: a sticking corner's slip relaxes at
         mu N m B1 / v_eps (times v_eps^3 / (u_t^2 + v_eps^2)^(3/2), 1 at u_t = 0: sliding is not stiff), m B1 =
-        1 + m y^2 / I_G; a memory being forgotten at r, counted in full while it exceeds `_NU_WARP` and in
+        1 + m y^2 / I_G; a memory or a set relaxing at r, counted in full while it exceeds `_NU_WARP` and in
         proportion below (`forgetting` in [0, 1]): a warp that switched off at the forgetting's own threshold made
         the memory hover there in flight, each step's stages flipping the switch (thousands of rejected steps
         through a drop's flight). Below `_NU_WARP` an explicit step may overshoot the memory to a small negative
