@@ -174,10 +174,9 @@ class BoxLanding(eqx.Module):
     def _state(self, t):
         return _state_at(self.solution, self.model.rhs, _T3, self.model.T, self.t_end, t)
 
-    def _motion(self, t):
-        """(v_G, spin) in the ground frame at scalar t, SI, free flight outside the landing."""
+    def _motion(self, t, y):
+        """(v_G, spin) in the ground frame at scalar t, SI, free flight outside the landing, from the state y there."""
         m = self.model
-        y = self._state(t)
         v = y[3:6] * m.V
         spin = _rotation(y[6:10]) @ y[10:13] * m.V / m.R
         fall = jnp.stack([0.0 * t, -self.gravity * t, 0.0 * t])
@@ -190,22 +189,22 @@ class BoxLanding(eqx.Module):
         """Contact force (Fx, N, Fz) on each vertex at time(s) t (s from first touch), N (ground frame)."""
         m = self.model
 
-        def one(t):
-            F = m.forces(self._state(t))[0]
+        def one(t, y):
+            F = m.forces(y)[0]
             return jnp.where((t >= 0.0) & (t <= self.t_end), F, 0.0) * m.mass * m.V / m.T
 
-        return _over_times(one, t)
+        return _over_times(one, t, self._state)
 
     def contact_velocity(self, t, q) -> Float[Array, "... 3"]:
         q = jnp.asarray(q)
         r0 = q @ self.attitude.T
 
-        def one(t):
-            v, spin = self._motion(t)
+        def one(t, y):
+            v, spin = self._motion(t, y)
             dv = v - self.v0 + jnp.stack([0.0 * t, self.gravity * t, 0.0 * t])
             return dv + jnp.cross(spin - self.w0, r0)
 
-        return _over_times(one, t)
+        return _over_times(one, t, self._state)
 
 
 def _box_model(W, H, D, m, moments, mu, e, tau, orientation, tilt, v, w, g, v_eps) -> tuple[_Model3, Array, Array]:
