@@ -106,8 +106,10 @@ from ._response.superposition import (
 from ._studies.montecarlo import (
     DropDistribution as DropDistribution,
     MonteCarloResult as MonteCarloResult,
+    OrientationTable as OrientationTable,
     montecarlo as montecarlo,
     montecarlo_numerics as montecarlo_numerics,
+    orientation_table as orientation_table,
     wilson_interval as wilson_interval,
 )
 from ._studies.sensitivity import (

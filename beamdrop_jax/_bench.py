@@ -272,6 +272,37 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     return rows
 
 
+def landing_bench(n_drops: int = 1 << 20) -> dict:
+    """A whole `montecarlo` of the default beam scene over uniform orientations on `"auto"` (near-flat drops from
+    an `orientation_table` built in the call), against the same call on the rigid law (the first strike alone,
+    the superposed fast path), timed once each after compiling: drops/s of each, the band's share and nodes, and
+    the seconds per node of the table."""
+    from ._studies.montecarlo import _nodes_around, orientation_table
+
+    scene, key = Scene.default(), jax.random.PRNGKey(2026)
+    rigid = _rigid(scene)
+    montecarlo(rigid, n_drops, key, progress=False)
+    orientation_table(scene, np.arange(8))  # compiles the landing's path
+    rigid_s = _median_time(lambda: montecarlo(rigid, n_drops, key, progress=False), 3)
+    start = time.perf_counter()
+    result = montecarlo(scene, n_drops, key, progress=False)
+    auto_s = time.perf_counter() - start
+    band = np.asarray(result.landing_weight) > 0
+    nodes = _nodes_around(np.asarray(result.samples.drop.orientation)[band]).size
+    return dict(landing_montecarlo_drops=n_drops, landing_auto_drops_per_s=n_drops / auto_s,
+                landing_rigid_drops_per_s=n_drops / rigid_s, landing_band_share=float(band.mean()),
+                landing_table_nodes=nodes, landing_seconds_per_node=(auto_s - rigid_s) / nodes)
+
+
+def _print_landings(landings: dict) -> None:
+    """`run_bench`'s progress line for `landing_bench`."""
+    print(f"  Monte-Carlo over uniform orientations, {landings['landing_montecarlo_drops']} drops, default beam: "
+          f"\"auto\" {landings['landing_auto_drops_per_s']:.3g} drops/s ({100 * landings['landing_band_share']:.2g} % "
+          f"near flat, from a table of {landings['landing_table_nodes']} orientations built in the call at "
+          f"{landings['landing_seconds_per_node']:.3g} s each), \"rigid\" (first strike) "
+          f"{landings['landing_rigid_drops_per_s']:.3g} drops/s", flush=True)
+
+
 def plate_bench(repeats: int = 5, n_drops: int = 1 << 20) -> dict:
     """Plates against beams, each pair timed in the same run (median wall times after compilation):
     - one `simulate` of the embedded `jesd22-board` plate (four screws) and of the default beam scene;
@@ -346,10 +377,15 @@ def box_bench(repeats: int = 3, n_drops: int = 1 << 20) -> dict:
 
 
 def _board_benches(quick: bool, progress: bool) -> tuple[dict, dict]:
-    """`plate_bench` and `box_bench`, each printed as it finishes with `progress`."""
+    """`plate_bench`, `landing_bench` (the full level only: its table takes a minute) and `box_bench`, each printed as
+    it finishes with `progress`."""
     plates = plate_bench(repeats=5 if quick else 9)
     if progress:
         _print_plates(plates)
+    if not quick:
+        plates.update(landing_bench())
+        if progress:
+            _print_landings(plates)
     boxes = box_bench(repeats=3 if quick else 5)
     if progress:
         _print_boxes(boxes)

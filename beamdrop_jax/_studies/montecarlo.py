@@ -439,11 +439,14 @@ def montecarlo(
       does. Default numerics: `montecarlo_numerics(scene, distribution)`.
 
     **Near-flat landings** (`Contact.model` "auto", the default): the drops whose strikes overlap
-    (`compliant_weight` > 0; about 6 % of uniform orientations on the default and JESD22 scenes) are solved again
-    on the compliant landing's path, `simulate`'s, `LANDING_BATCH` at a time, and replace the fast path's peaks
-    (`MonteCarloResult.landing_weight` says which). "compliant" takes that path for every drop, "rigid" for none.
-    That path costs about 0.5 s a drop on 2 cores (two diffrax solves: the landing, the board): more than
-    `max_landings` such drops is refused before any is solved, with the count and the time it would take.
+    (`compliant_weight` > 0; about 6 % of uniform orientations on the default and JESD22 scenes) take the compliant
+    landing's path, `simulate`'s, and replace the fast path's peaks (`MonteCarloResult.landing_weight` says which).
+    "compliant" takes that path for every drop, "rigid" for none. That path costs about 0.15 s a drop on 2 cores
+    (two diffrax solves: the landing, the board), `LANDING_BATCH` at a time. Where only the orientation of a plane
+    section varies and the band holds more drops than it has nodes, an `orientation_table` over the band (nodes
+    0.05 deg apart, 404 on the default scene, about a minute) gives the band's peaks, within 5e-3 of each drop's
+    own solve; otherwise each band drop is solved. More than `max_landings` solves is refused before any is
+    solved, with the count and the time it would take.
 
     **Arguments:**
     - `key`: a `jax.random.PRNGKey`; the same key gives the same drops and results for any `batch_size` and
@@ -566,30 +569,110 @@ def _from_rest(scene: Scene, samples: Scene) -> bool:
                                                  (d.spin, d.horizontal_speed, d.side_speed, d.spin_x, d.spin_y)))
 
 
-LANDING_SECONDS = 0.5
-"""Measured cost of a near-flat drop on the compliant path, s (2 cores; `beamdrop bench --landings`)."""
+LANDING_SECONDS = 0.15
+"""Measured cost of a near-flat drop on the compliant path, s (2 cores, the default scene, `LANDING_BATCH` at a
+time)."""
 
 
 def _landings(scene, samples, axes, outputs, numerics, progress, max_landings):
     """The drops whose strikes overlap (`compliant_weight` > 0 under `Contact.model` "auto", every drop under
     "compliant"): their peaks on the compliant landing's path (`simulate`'s, default numerics), written over the
-    fast path's in `outputs`. Returns the weights (n,)."""
+    fast path's in `outputs`, each solved, or, where only the orientation varies and the band's drops lie between
+    fewer nodes of an `orientation_table` than they are, read from that table. Returns the weights (n,)."""
     n = outputs[0].shape[0]
     if scene.contact.model == "rigid" or numerics.max_impacts > 1:
         return np.zeros(n)
-    weight = np.asarray(_weights(samples, axes, _from_rest(scene, samples)))
+    from_rest = _from_rest(scene, samples)
+    weight = np.asarray(_weights(samples, axes, from_rest))
     band = np.flatnonzero(weight > 0)
-    if band.size > max_landings:
+    if band.size == 0:
+        return weight
+    orientation = np.asarray(samples.drop.orientation)
+    nodes = _nodes_around(orientation[band]) if _only_orientation_varies(scene, axes) else None
+    solves = band.size if nodes is None or nodes.size >= band.size else nodes.size
+    if solves > max_landings:
         raise ValueError(
             f"{band.size} of the {n} drops ({100 * band.size / n:.2g} %) land nearly flat, where corners strike "
-            f"together; each is solved on the compliant landing's path, about {LANDING_SECONDS:g} s a drop on 2 "
-            f"cores (about {band.size * LANDING_SECONDS / 60:.0f} min here), more than max_landings = "
-            f"{max_landings} allows. Valid: fewer drops, max_landings >= {band.size} (--max-landings) to pay for "
+            f"together; that takes {solves} solves on the compliant landing's path, about {LANDING_SECONDS:g} s "
+            f"each on 2 cores (about {solves * LANDING_SECONDS / 60:.0f} min here), more than max_landings = "
+            f"{max_landings} allows. Valid: fewer drops, max_landings >= {solves} (--max-landings) to pay for "
             'them, or Contact(model="rigid") (--contact-model rigid: the first strike only, fast, but it misses '
             "the near-flat drops' peaks)")
-    for out, v in zip(outputs, solve_landings(samples, axes, band, progress)):
+    if solves < band.size:
+        table = orientation_table(scene, nodes, progress)
+        values = table.lookup(orientation[band])
+    else:
+        values = solve_landings(samples, axes, band, progress)
+    for out, v in zip(outputs, values):
         out[band] = v
     return weight
+
+
+ORIENTATION_STEP = math.radians(0.05)
+"""Node spacing of `orientation_table`, rad: the near-flat band's peaks move by at most 3.5 % between neighbours
+0.05 deg apart on the default scene."""
+
+
+def _only_orientation_varies(scene: Scene, axes) -> bool:
+    """Whether the drops of a plane section differ in their orientation alone (the band's table applies)."""
+    return (not scene.housing.is_box and len(jax.tree_util.tree_leaves(axes)) == 1
+            and axes.drop.orientation == 0)
+
+
+def _orientation_nodes(scene: Scene) -> np.ndarray:
+    """Indices k of the orientations k `ORIENTATION_STEP` on [0, 2 pi) whose drop, or a neighbour's, lands nearly
+    flat (`compliant_weight` > 0): what `orientation_table` solves."""
+    grid = jnp.arange(_node_count()) * ORIENTATION_STEP
+    samples = eqx.tree_at(lambda s: s.drop.orientation, scene, grid)
+    wanted = np.asarray(_weights(samples, sample_axes(samples, scene))) > 0
+    wanted |= np.roll(wanted, 1) | np.roll(wanted, -1)
+    return np.flatnonzero(wanted)
+
+
+def _node_count() -> int:
+    return math.ceil(2 * math.pi / ORIENTATION_STEP)
+
+
+def _nodes_around(orientation) -> np.ndarray:
+    """The nodes k (orientations k `ORIENTATION_STEP`) on either side of each of these orientations (rad)."""
+    k = np.floor(np.mod(orientation, 2 * math.pi) / ORIENTATION_STEP).astype(int) % _node_count()
+    return np.unique(np.concatenate([k, (k + 1) % _node_count()]))
+
+
+class OrientationTable(eqx.Module):
+    """Peaks on the compliant landing's path at orientations k `ORIENTATION_STEP` (k in `nodes`) of one scene,
+    read at other orientations by linear interpolation (`lookup`)."""
+
+    nodes: np.ndarray
+    values: tuple  # stress, strain, deflection, flags at the nodes
+
+    def lookup(self, orientation):
+        """(stress, strain, deflection, flags) at orientations (rad) between nodes; a drop whose neighbours are
+        not both nodes gets NaN and `Flag.OUTSIDE_TABLE`."""
+        count = _node_count()
+        where = np.full(count, -1)
+        where[self.nodes] = np.arange(self.nodes.size)
+        u = np.mod(np.asarray(orientation, dtype=float), 2 * math.pi) / ORIENTATION_STEP
+        k = np.minimum(np.floor(u).astype(int), count - 1)
+        f = u - k
+        a, b = where[k], where[(k + 1) % count]
+        missing = (a < 0) | (b < 0)
+        a, b = np.where(missing, 0, a), np.where(missing, 0, b)
+        out = [np.where(missing, np.nan, (1 - f) * v[a] + f * v[b]) for v in self.values[:3]]
+        flags = np.where(missing, int(Flag.OUTSIDE_TABLE), self.values[3][a] | self.values[3][b]).astype(np.int32)
+        return out + [flags]
+
+
+def orientation_table(scene: Scene, nodes=None, progress: bool = False) -> OrientationTable:
+    """The near-flat band of a plane section's drops over orientation: peaks on the compliant landing's path
+    (`simulate`'s, default numerics) at orientations k `ORIENTATION_STEP` for k in `nodes` (default: every node
+    whose drop, or a neighbour's, lands nearly flat; about 730 on the default scene). `montecarlo` uses it when
+    only the orientation varies and the band holds more drops than the table has nodes: within 1 % of each drop's
+    own solve (tests/test_montecarlo.py)."""
+    nodes = _orientation_nodes(scene) if nodes is None else np.asarray(nodes, dtype=int)
+    samples = eqx.tree_at(lambda s: s.drop.orientation, scene, jnp.asarray(nodes * ORIENTATION_STEP))
+    values = solve_landings(samples, sample_axes(samples, scene), np.arange(nodes.size), progress)
+    return OrientationTable(nodes, tuple(values))
 
 
 def solve_landings(samples, axes, idx, progress: bool = False):
