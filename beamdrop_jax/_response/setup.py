@@ -9,12 +9,13 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._common.checks import Flag, Range, as_float, flag_if, float_dtype
-from .._impact.motion import HalfSine
+from .._impact.motion import HalfSine, LandingMotion
 from .._scene.containers import Scene
 from .._board.base import modal_velocity_jumps, natural_frequencies
 from .._board.search import stop_gradient
 from .closed_form import ClosedFormModes
 from .diffrax_path import solve_modes
+from .sampled import sampled_modes
 from .numerics import Numerics
 from .pulses import fundamental_period
 
@@ -74,6 +75,8 @@ def _modal_solution(board, motion, numerics: Numerics, window, mask):
         beta = jax.vmap(lambda j: modal_velocity_jumps(board, j, M))(jumps) * mask
         omega = natural_frequencies(board, M)
         return ClosedFormModes(omega, board.damping_ratio, duration, beta, times), jnp.asarray(False)
+    if isinstance(motion, LandingMotion) and not numerics.stretching:
+        return sampled_modes(board, motion, M, mask, window), jnp.asarray(False)
     return solve_modes(
         board,
         motion,
