@@ -377,7 +377,7 @@ def box_bench(repeats: int = 3, n_drops: int = 1 << 20) -> dict:
 
 
 def _board_benches(quick: bool, progress: bool) -> tuple[dict, dict]:
-    """`plate_bench`, `landing_bench` (the full level only: its table takes a minute) and `box_bench`, each printed as
+    """`plate_bench`, `landing_bench` (the full level only: its table takes half a minute) and `box_bench`, each printed as
     it finishes with `progress`."""
     plates = plate_bench(repeats=5 if quick else 9)
     if progress:

@@ -320,7 +320,8 @@ class LandingMotion(Record):
     where corners strike together), sampled on [0, window] from the first touch: a `Record` whose modes and search
     window follow one corner contact's `duration` (as the rigid law's half-sine does), not the record's length.
     `weight` is the compliant landing's share where `"auto"` blends it with the rigid law's half-sine (1: the
-    landing alone). Built by `landing_motion`; needs the diffrax path."""
+    landing alone). Built by `landing_motion`; the board answers it in closed form per sample interval
+    (`SampledModes`)."""
 
     duration: Float[Array, ""]
     weight: Float[Array, ""]

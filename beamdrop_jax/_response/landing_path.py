@@ -179,9 +179,11 @@ def _velocity(scene: Scene):
     return jnp.stack([d.horizontal_speed, -jnp.sqrt(2.0 * GRAVITY * jnp.maximum(d.height, 0.0))])
 
 
-def scene_landing(scene: Scene, window, max_steps: int = 32768) -> Landing | BoxLanding:
+def scene_landing(scene: Scene, window, max_steps: int = 16384) -> Landing | BoxLanding:
     """The compliant landing of a drop, integrated from the first touch to `window` (s) through every strike: the
-    plane section's (`Landing`) or a box's (`BoxLanding`)."""
+    plane section's (`Landing`) or a box's (`BoxLanding`). `max_steps`: the solve's step limit (the dense
+    solution's buffer, whose size its cost follows; random near-flat drops of the default and JESD22 scenes took
+    at most 4300 and 5400 steps, measured); beyond it the drop is flagged `SOLVER_FAILED`."""
     h, c, d = scene.housing, scene.contact, scene.drop
     nan = jnp.asarray(jnp.nan, dtype=jnp.result_type(float))
     if h.is_box:

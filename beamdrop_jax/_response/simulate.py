@@ -96,7 +96,8 @@ def _drop_motion(scene: Scene, numerics: Numerics):
 def landing_drive(scene: Scene, numerics: Numerics, landing: str = "rigid"):
     """What the board sees in a drop, by the landing path (`landing`, static): `(motion, numerics, impacts, first,
     flags, weight)`. `"rigid"`: `drop_motion`'s; `"compliant"`: the compliant landing's supports' acceleration,
-    blended with the rigid law's by `compliant_weight` (`weight`), solved with diffrax."""
+    blended with the rigid law's by `compliant_weight` (`weight`): the landing solved with diffrax, the board's
+    response to its samples in closed form (`SampledModes`)."""
     motion, impacts, hit, flags, box = _drop_motion(scene, numerics)
     if landing == "rigid":
         return motion, numerics, impacts, hit, flags, jnp.zeros_like(scene.contact.duration), box

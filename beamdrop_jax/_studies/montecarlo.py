@@ -441,10 +441,10 @@ def montecarlo(
     **Near-flat landings** (`Contact.model` "auto", the default): the drops whose strikes overlap
     (`compliant_weight` > 0; about 6 % of uniform orientations on the default and JESD22 scenes) take the compliant
     landing's path, `simulate`'s, and replace the fast path's peaks (`MonteCarloResult.landing_weight` says which).
-    "compliant" takes that path for every drop, "rigid" for none. That path costs about 0.15 s a drop on 2 cores
-    (two diffrax solves: the landing, the board), `LANDING_BATCH` at a time. Where only the orientation of a plane
+    "compliant" takes that path for every drop, "rigid" for none. That path costs about 0.06 s a drop on 2 cores
+    (a diffrax solve of the landing, the board's response in closed form), `LANDING_BATCH` at a time. Where only the orientation of a plane
     section varies and the band holds more drops than it has nodes, an `orientation_table` over the band (nodes
-    0.05 deg apart, 404 on the default scene, about a minute) gives the band's peaks, within 5e-3 of each drop's
+    0.05 deg apart, 404 on the default scene, about 25 s) gives the band's peaks, within 5e-3 of each drop's
     own solve; otherwise each band drop is solved. More than `max_landings` solves is refused before any is
     solved, with the count and the time it would take.
 
@@ -559,7 +559,7 @@ def montecarlo(
 
 
 LANDING_BATCH = 8
-"""Near-flat drops solved at once on the compliant path (each is two diffrax solves)."""
+"""Near-flat drops solved at once on the compliant path (each a diffrax solve of its landing)."""
 
 
 def _from_rest(scene: Scene, samples: Scene) -> bool:
@@ -569,7 +569,7 @@ def _from_rest(scene: Scene, samples: Scene) -> bool:
                                                  (d.spin, d.horizontal_speed, d.side_speed, d.spin_x, d.spin_y)))
 
 
-LANDING_SECONDS = 0.15
+LANDING_SECONDS = 0.06
 """Measured cost of a near-flat drop on the compliant path, s (2 cores, the default scene, `LANDING_BATCH` at a
 time)."""
 
