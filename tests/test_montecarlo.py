@@ -366,6 +366,7 @@ def test_near_flat_band_reads_a_table_over_orientation(monkeypatch):
         return tables[-1]
 
     monkeypatch.setattr(mc, "orientation_table", spy)
+    monkeypatch.setattr(mc, "_TABLES", type(mc._TABLES)())  # nothing kept from other tests
     scene, key = bd.Scene.default(), jax.random.PRNGKey(5)
     near = bd.DropDistribution(orientation=("uniform", math.radians(0.5), math.radians(2.0)))
     res = bd.montecarlo(scene, 64, key, near, progress=False)
@@ -375,9 +376,18 @@ def test_near_flat_band_reads_a_table_over_orientation(monkeypatch):
     for found, expected in zip((res.peak_stress, res.peak_strain, res.peak_deflection), direct[:3]):
         np.testing.assert_allclose(np.asarray(found)[first], expected, rtol=5e-3)
     assert not np.any(np.asarray(res.flags)) and not np.any(direct[3])
+    # Another run on the scene solves no node it keeps, and answers the same.
+    again = bd.montecarlo(scene, 64, key, near, progress=False)
+    assert len(tables) == 1
+    np.testing.assert_array_equal(np.asarray(again.peak_strain), np.asarray(res.peak_strain))
     # Between nodes it has not solved, a table answers with a flag, never a number.
     far = tables[0].lookup(np.array([math.radians(10.0)]))
     assert np.isnan(far[0][0]) and far[3][0] == bd.Flag.OUTSIDE_TABLE
+    # Over uniform orientations the weights come from the weights at the nodes where those are 0 on both sides:
+    # equal to each drop's own.
+    spread = np.asarray(bd.DropDistribution().sample(scene, 4096, key).drop.orientation)
+    np.testing.assert_array_equal(mc._orientation_weights(scene, mc._scene_key(scene), spread),
+                                  np.asarray(mc.landing_weights(scene, 4096, key)))
     # Other distributions solve each band drop (the count the refusal names).
     heights = dataclasses.replace(near, height=("uniform", 1.4, 1.6))
     with pytest.raises(ValueError, match="that takes 64 solves"):
