@@ -103,8 +103,8 @@ from ._response.superposition import (
     table_numerics as table_numerics,
     table_peaks as table_peaks,
 )
+from ._studies.distribution import DropDistribution as DropDistribution
 from ._studies.montecarlo import (
-    DropDistribution as DropDistribution,
     MonteCarloResult as MonteCarloResult,
     OrientationTable as OrientationTable,
     montecarlo as montecarlo,

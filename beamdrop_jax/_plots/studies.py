@@ -4,7 +4,7 @@ import numpy as np
 
 from .._common.checks import on_host
 from .._scene.containers import board_ends
-from .._studies.montecarlo import _FIELDS as SAMPLED_FIELDS, _SHOWN as SHOWN_FIELDS
+from .._studies.distribution import _FIELDS as SAMPLED_FIELDS, _SHOWN as SHOWN_FIELDS
 from .._studies.standards import STANDARDS
 from .common import _axes
 
