@@ -75,3 +75,31 @@ _LONGEST = (
 
 def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda item: not any(name in item.nodeid for name in _LONGEST))
+
+
+_RSS_LIMIT = 4 * 2**30  # bytes per test worker
+
+
+def _resident_bytes() -> int:
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):  # not Linux: no reading, no clearing
+        return 0
+
+
+def pytest_runtest_teardown(item, nextitem):
+    """Keep each test worker under `_RSS_LIMIT`: its compiled programs grew to 9 GB by the end of a run (two workers
+    and the notebooks' kernels near the machine's 23 GB; a worker of a CI run died unannounced). Clearing JAX's
+    caches and returning the freed heap to the system takes a worker back to a few hundred MB (measured); a program
+    needed again comes from the persistent compilation cache."""
+    if _resident_bytes() > _RSS_LIMIT:
+        import ctypes
+        import gc
+
+        jax.clear_caches()
+        gc.collect()
+        try:
+            ctypes.CDLL("libc.so.6").malloc_trim(0)
+        except (OSError, AttributeError):  # not glibc
+            pass

@@ -599,8 +599,11 @@ def test_converged_means_the_gauges_agree_with_a_converged_run():
 def test_default_gradients_of_a_screwed_board_match_central_differences():
     """At the defaults the refined peak is the maximiser, so the envelope gradient is the derivative of the value
     returned (d peak stress / d mount position, the JESD22 board with its screws moved off symmetry: at a
-    symmetric layout mirror peaks tie and the peak has a kink, not a gradient). The step is large enough that the
-    search's last digits (1e-9 of the peak) do not enter the difference."""
+    symmetric layout mirror peaks tie and the peak has a kink, not a gradient). Reference: the median of three
+    central differences (steps 1e-5, 3e-5, 1e-4 m). The found peak carries a noise of up to 2e-5 of itself here:
+    two local maxima of the stress lie 0.14 mm and 2 us apart, inside one cell of the search's grid, and Newton
+    from the grid ends on either (measured: one difference of the three straddled such a switch, 6 % off, under
+    the test run's compiler flags)."""
     base = bd.load_scene("jesd22-board").replace(**{"drop.orientation": 0.3})
     mounts = jnp.asarray(np.asarray(base.board.mounts) + np.random.default_rng(1).uniform(-2e-3, 2e-3, (4, 2)))
 
@@ -608,9 +611,9 @@ def test_default_gradients_of_a_screwed_board_match_central_differences():
         return bd.peak_stress(eqx.tree_at(lambda s: s.board.mounts, base, m))
 
     grad = np.asarray(jax.grad(peak)(mounts))
-    step = 3e-5
     for i, j in [(0, 0), (2, 1)]:
-        fd = (float(peak(mounts.at[i, j].add(step))) - float(peak(mounts.at[i, j].add(-step)))) / (2 * step)
+        fd = np.median([(float(peak(mounts.at[i, j].add(step))) - float(peak(mounts.at[i, j].add(-step)))) / (2 * step)
+                        for step in (1e-5, 3e-5, 1e-4)])
         np.testing.assert_allclose(grad[i, j], fd, rtol=5e-3)
 
 

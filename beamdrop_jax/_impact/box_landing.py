@@ -38,7 +38,7 @@ from .box import box_vertices
 import numpy as np
 
 from .._common.checks import GRAVITY, as_float, is_concrete
-from .landing import (_FORGET_RATE, _LAMBDA0, E_MIN, _check_eagerly, _flags, _over_times, _solve, _state_at,
+from .landing import (E_MIN, _check_eagerly, _flags, _over_times, _solve, _state_at,
                       memory_rate, plane_landing, spring_force)
 
 _N = 8  # vertices
@@ -117,23 +117,22 @@ class _Model3(eqx.Module):
         w_b = y[10:13]
         inertia = 1.0 / self.mR2_I  # I / (m R^2)
         alpha = self.mR2_I * torque_body - self.L_R * jnp.cross(w_b, inertia * w_b) / inertia
-        ddmax, compressing, forgetting = memory_rate(self.e, d, dmax, d_rate)
+        ddmax, compressing, warp = memory_rate(self.e, d, dmax, d_rate, self.friction_stiffness(F[:, 1], Rot, o, u))
         in_contact = jnp.where(F[:, 1] > 0.0, 1.0, 0.0)
         rate = jnp.concatenate([y[3:6], a, _quaternion_rate(y[6:10], w_b) * self.L_R, alpha, d_rate, ddmax,
                                 F.reshape(-1), in_contact, compressing, jnp.ones(1)])
-        return rate * self.warp(F[:, 1], Rot, o, u, forgetting)
+        return rate * warp
 
-    def warp(self, N, Rot, o, u, forgetting):
-        """dt/dsigma = 1 / (1 + Lambda / lambda0) as the plane's, with m B1 the trace of the vertex's tangential
-        inverse inertia times m (an upper bound of its largest eigenvalue) at the current attitude."""
+    def friction_stiffness(self, N, Rot, o, u):
+        """The sticking vertices' stiff rate as the plane's, with m B1 the trace of the vertex's tangential inverse
+        inertia times m (an upper bound of its largest eigenvalue) at the current attitude."""
         u2 = jnp.sum(u**2, axis=-1)
         slip = self.eps**2 / (u2 + self.eps**2)
         tangents = jnp.eye(3, dtype=o.dtype)[jnp.array([0, 2])]  # x, z
         arms = jnp.cross(o[:, None, :], tangents[None, :, :]) @ Rot  # (8, 2, 3): r x t in body axes
         mB1 = 2.0 + jnp.sum(arms**2 * self.mR2_I, axis=(-1, -2))
         stiff = self.mu * N * mB1 * slip * jax.lax.rsqrt(u2 + self.eps**2)
-        Lambda = jnp.sum(stiff) + _FORGET_RATE * jnp.sum(forgetting)
-        return 1.0 / (1.0 + Lambda / _LAMBDA0)
+        return jnp.sum(stiff)
 
     def separated(self, y):
         F, _, _, _, d, d_rate = self.forces(y)

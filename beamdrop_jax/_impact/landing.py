@@ -61,8 +61,8 @@ batches. The stiff part is the friction of a sticking corner, whose slip relaxes
 unit mass (m B1 = 1 + m y^2 / I_G), thousands per tau at the default v_eps. An explicit method's steps must stay
 below about 3 / Lambda; its error control keeps the solution stable there, but not the derivatives that reverse
 mode carries through the same steps, which grew to 1e28 in a sticking landing. So the solve runs in a warped time
-sigma, dt/dsigma = 1 / (1 + Lambda / lambda0) (lambda0 = 20 / tau; the memory's and the set's relaxations count in
-Lambda too, in proportion below 1e-6 L), where no rate exceeds lambda0, with steps dsigma <= 2.5 / lambda0: stable
+sigma, dt/dsigma = 1 / (1 + Lambda / lambda0) (lambda0 = 20 / tau; the memory's and the set's relaxations, and the
+loading corners' (`memory_rate`), count in Lambda too), where no rate exceeds lambda0, with steps dsigma <= 2.5 / lambda0: stable
 for the solution and its derivatives, at about 2 / Lambda of physical time per step while sticking (some 1000 steps
 per tau at the default v_eps; a sliding or frictionless corner needs about 100). The physical time is the state's last entry; the dense solution is read at
 a physical time by bisection in sigma. A smaller v_eps needs `max_steps` to match. The solve stops (a diffrax
@@ -122,14 +122,17 @@ def _cross_z(v):
 def spring_force(kappa, e, d, dmax):
     """The hysteretic corner spring's normal force (units of `kappa`, the loading stiffness, times d): k d on the
     loading line (d >= d_max), (k / e^2)(d - d_p) = k (d - (1 / e^2 - 1)(d_max - d)) below it, 0 below d_p."""
-    # `where`, not `maximum`: at d = d_max, the loading line, the derivative must be the loading line's.
-    below = jnp.where(dmax > d, dmax - d, 0.0)
+    # On the loading line (d_max - d within the round-off margin nu) the force is k d: the margin carries no
+    # derivative, so that a memory's derivative that has not healed yet (`memory_rate`) does not reach the force.
+    gap = dmax - d
+    below = jnp.where(gap > _NU, gap, jax.lax.stop_gradient(jnp.maximum(gap, 0.0)))
     return jnp.maximum(0.0, kappa * (d - (1.0 / e**2 - 1.0) * below))
 
 
-def memory_rate(e, d, dmax, d_rate):
-    """The rate of each corner's memory d_max (the module's notes), whether the corner is compressing (1.0 or 0.0:
-    on its loading line, below the ground) and how much of a relaxing memory the time warp counts (in [0, 1]).
+def memory_rate(e, d, dmax, d_rate, friction_stiffness):
+    """Each corner's memory rate d(d_max)/dt (the module's notes), whether it is compressing (1.0 or 0.0: on its
+    loading line, below the ground), and the time warp dt/dsigma = 1 / (1 + Lambda / lambda0), Lambda the stiff
+    rates: `friction_stiffness` (the sticking corners', the model's) and the memory's own below.
 
     - d_max follows d while the corner loads and while it is above the ground (so a contact starts with d_max = d,
       with no switch); the margin nu keeps round-off from flipping the test.
@@ -137,7 +140,16 @@ def memory_rate(e, d, dmax, d_rate):
       that turns back before it clears the ground meets force (almost) at once, as one that just cleared it does.
     - Above the ground a memory left from a contact relaxes onto d at the rate r.
     Both relaxations start from zero, so the rate is continuous where a contact releases or a corner leaves the
-    ground's force (a jump there would be a jump of the derivatives that reverse mode does not see)."""
+    ground's force (a jump there would be a jump of the derivatives that reverse mode does not see). They count
+    in Lambda at r, in full while they exceed `_NU_WARP` and in proportion below: a warp that switched off at the
+    forgetting's own threshold made the memory hover there in flight, each step's stages flipping the switch
+    (thousands of rejected steps through a drop's flight). Below `_NU_WARP` an explicit step may overshoot the
+    memory to a small negative value, where the loading test freezes it: a memory of that size is gone either way.
+    - A corner that reloads onto its loading line switches d_max's rate from 0 to d' on a surface the state
+      crosses. Reverse mode through the solver's steps misses that switch (its saltation) and kept d_max's
+      derivative apart from d's for the rest of the contact, though the two are equal on the loading line (a
+      factor of 30 in one corner's impulse, measured). While a corner loads, a term whose value is 0 relaxes
+      d_max's derivative onto d's at the rate r, counted in Lambda (6 % more steps on a near-flat landing)."""
     follow = (d >= dmax - _NU) & ((d_rate > 0.0) | (d < 0.0))
     set_fraction = 1.0 - e**2
     gap = set_fraction * dmax - d  # how far the set lies below a released corner
@@ -149,7 +161,11 @@ def memory_rate(e, d, dmax, d_rate):
     compressing = jnp.where(follow & (d > 0.0), 1.0, 0.0)
     relaxing = (jnp.where(forget, jnp.clip((dmax - d) / _NU_WARP, 0.0, 1.0), 0.0)
                 + jnp.where(released, jnp.clip(gap / _NU_WARP, 0.0, 1.0), 0.0))
-    return ddmax, compressing, relaxing
+    Lambda = friction_stiffness + _FORGET_RATE * jnp.sum(relaxing + compressing)
+    warp = 1.0 / (1.0 + Lambda / _LAMBDA0)
+    memory = dmax - d
+    heal = -_FORGET_RATE * (memory - jax.lax.stop_gradient(memory))
+    return ddmax + jnp.where(compressing > 0.0, heal, 0.0), compressing, warp
 
 
 class _Model(eqx.Module):
@@ -201,27 +217,20 @@ class _Model(eqx.Module):
         dmax = y[10:14]
         a = jnp.sum(F, axis=0) - jnp.stack([jnp.zeros_like(self.g), self.g])
         alpha = self.mR2_I * jnp.sum(o[:, 0] * F[:, 1] - o[:, 1] * F[:, 0])
-        ddmax, compressing, forgetting = memory_rate(self.e, d, dmax, d_rate)
+        ddmax, compressing, warp = memory_rate(self.e, d, dmax, d_rate, self.friction_stiffness(F[:, 1], o, u_t))
         # Each corner's time in contact and time loading: their rates jump where a contact starts, turns from
         # loading to unloading (the force's second derivative jumps there) or ends, so the step controller closes
         # in on those kinks instead of stepping across them (which costs accuracy and spoils derivatives).
         in_contact = jnp.where(F[:, 1] > 0.0, 1.0, 0.0)
         rate = jnp.concatenate([y[2:4], a, y[5:6], alpha[None], d_rate, ddmax, F[:, 0], F[:, 1], in_contact,
                                 compressing, jnp.ones(1)])
-        return rate * self.warp(F[:, 1], o, u_t, forgetting)
+        return rate * warp
 
-    def warp(self, N, o, u_t, forgetting):
-        """dt/dsigma = 1 / (1 + Lambda / lambda0), Lambda the stiff rates: a sticking corner's slip relaxes at
-        mu N m B1 / v_eps (times v_eps^3 / (u_t^2 + v_eps^2)^(3/2), 1 at u_t = 0: sliding is not stiff), m B1 =
-        1 + m y^2 / I_G; a memory or a set relaxing at r, counted in full while it exceeds `_NU_WARP` and in
-        proportion below (`forgetting` in [0, 1]): a warp that switched off at the forgetting's own threshold made
-        the memory hover there in flight, each step's stages flipping the switch (thousands of rejected steps
-        through a drop's flight). Below `_NU_WARP` an explicit step may overshoot the memory to a small negative
-        value, where the loading test freezes it: a memory of that size is gone either way."""
+    def friction_stiffness(self, N, o, u_t):
+        """The sticking corners' stiff rate (per T), summed: a sticking corner's slip relaxes at mu N m B1 / v_eps
+        (times v_eps^3 / (u_t^2 + v_eps^2)^(3/2), 1 at u_t = 0: sliding is not stiff), m B1 = 1 + m y^2 / I_G."""
         slip = self.eps**2 / (u_t**2 + self.eps**2)
-        stiff = self.mu * N * (1.0 + self.mR2_I * o[:, 1] ** 2) * slip * jax.lax.rsqrt(u_t**2 + self.eps**2)
-        Lambda = jnp.sum(stiff) + _FORGET_RATE * jnp.sum(forgetting)
-        return 1.0 / (1.0 + Lambda / _LAMBDA0)
+        return jnp.sum(self.mu * N * (1.0 + self.mR2_I * o[:, 1] ** 2) * slip * jax.lax.rsqrt(u_t**2 + self.eps**2))
 
     def separated(self, y):
         """No corner carries force and every corner below the ground moves up."""
