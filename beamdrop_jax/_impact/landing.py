@@ -62,10 +62,11 @@ unit mass (m B1 = 1 + m y^2 / I_G), thousands per tau at the default v_eps. An e
 below about 3 / Lambda; its error control keeps the solution stable there, but not the derivatives that reverse
 mode carries through the same steps, which grew to 1e28 in a sticking landing. So the solve runs in a warped time
 sigma, dt/dsigma = 1 / (1 + Lambda / lambda0) (lambda0 = 20 / tau; the memory's and the set's relaxations, and the
-loading corners' (`memory_rate`), count in Lambda too), where no rate exceeds lambda0, with steps dsigma <= 2.5 / lambda0: stable
-for the solution and its derivatives, at about 2 / Lambda of physical time per step while sticking (some 1000 steps
-per tau at the default v_eps; a sliding or frictionless corner needs about 100). The physical time is the state's last entry; the dense solution is read at
-a physical time by bisection in sigma. A smaller v_eps needs `max_steps` to match. The solve stops (a diffrax
+loading corners' (`memory_rate`), count in Lambda too), where no rate exceeds lambda0, with steps
+dsigma <= 2.5 / lambda0: stable for the solution and its derivatives, at about 2 / Lambda of physical time per step
+while sticking (some 1000 steps per tau at the default v_eps; a sliding or frictionless corner needs about 100). The
+physical time is the state's last entry; the dense solution is read at a physical time by Newton steps on the
+solver's step that holds it (`_state_at`). A smaller v_eps needs `max_steps` to match. The solve stops (a diffrax
 `Event`, at the end of the step where it holds) when the landing is over: no corner carries force and every corner
 still below the ground moves up. A corner above the ground that still approaches it then is a later impact
 (clattering), not part of this landing. The time bound `t_max` (default 10 tau) ends a landing that does not

@@ -289,7 +289,7 @@ def montecarlo(
 
     **Near-flat landings** (`Contact.model` "auto", the default): the drops whose strikes overlap
     (`compliant_weight` > 0; about 6 % of uniform orientations) take the compliant landing's path, `simulate`'s
-    (about 0.06 s a drop on 2 cores), and replace the fast path's peaks (`MonteCarloResult.landing_weight` says
+    (0.03 to 0.05 s a drop on 2 cores), and replace the fast path's peaks (`MonteCarloResult.landing_weight` says
     which); "compliant" takes it for every drop, "rigid" for none. Where only the orientation of a plane section
     varies and the band's drops outnumber its nodes, an `orientation_table` (0.05 deg apart, within 5e-3 of each
     drop's solve; the last four scenes' stay in memory) gives them. Over `max_landings` solves is refused first.
