@@ -147,6 +147,11 @@ def _ssss_reference(L, W, h, E_, rho, nu, dv, tau, n_modes, x, y, t):
     return h / 2 * (np.abs(c) + r)
 
 
+# Twice in fresh-clone CI runs, on the test workers' compile flags, this test's program hung inside XLA's CPU runtime:
+# the main thread waited in `Execute` for a result that never became ready, every XLA thread idle (gdb and py-spy
+# stacks). It takes seconds when it runs: a hang ends it after 120 s and one rerun follows, in a fresh worker.
+@pytest.mark.timeout(120)
+@pytest.mark.flaky(reruns=1)
 def test_ssss_gauge_history_matches_an_independent_modal_solution():
     L, W, h, nu = 0.12, 0.08, 1e-3, 0.25
     plate = bd.Plate(length=L, width=W, thickness=h, youngs_modulus=22e9, density=1900.0, poisson_ratio=nu,
