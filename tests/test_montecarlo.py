@@ -392,3 +392,30 @@ def test_near_flat_band_reads_a_table_over_orientation(monkeypatch):
     heights = dataclasses.replace(near, height=("uniform", 1.4, 1.6))
     with pytest.raises(ValueError, match="that takes 64 solves"):
         bd.montecarlo(scene, 64, key, heights, progress=False, max_landings=10)
+
+
+def test_landings_that_outgrow_the_first_step_limit_are_solved_again():
+    """`solve_landings` solves with a short step limit first (a smaller dense buffer) and again with `simulate`'s
+    where that is not enough: nearly plastic near-flat landings (restitution 0.012 to 0.017, 4900 to 6100 steps)
+    and an ordinary one, against `simulate` on each drop."""
+    from beamdrop_jax._studies import montecarlo as mc
+
+    scene = bd.Scene.default()
+    cases = [(0.01569, 0.4705, 0.01215), (0.03335, 0.3091, 0.01623), (0.00920, 0.4220, 0.01727),
+             (0.00873, 0.3, 0.4)]  # (orientation rad, friction, restitution)
+    o, mu, e = (jnp.asarray(v) for v in zip(*cases))
+    samples = eqx.tree_at(lambda s: (s.drop.orientation, s.contact.friction, s.contact.restitution), scene,
+                          (o, mu, e))
+    axes = mc.sample_axes(samples, scene)
+    first = mc._solve_batches(samples, axes, np.arange(4), mc.FIRST_LANDING_STEPS, False)
+    assert list(first[3] & bd.Flag.SOLVER_FAILED) == [bd.Flag.SOLVER_FAILED] * 3 + [0]
+    stress, strain, deflection, flags = mc.solve_landings(samples, axes, np.arange(4))
+    assert not np.any(flags)
+    for i, (theta, f, r) in enumerate(cases):
+        res = bd.simulate(scene.replace(**{"drop.orientation": theta, "contact.friction": f,
+                                           "contact.restitution": r}))
+        assert float(res.landing_weight) > 0 and int(res.flags) == 0
+        np.testing.assert_allclose([stress[i], strain[i], deflection[i]],
+                                   [float(res.peak.stress), float(res.peak.strain), float(res.peak.deflection)],
+                                   rtol=1e-9)
+    assert first[0][3] == stress[3]  # a landing within the first limit: the same solve

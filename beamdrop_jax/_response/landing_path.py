@@ -200,7 +200,7 @@ def landing_motion(scene: Scene, numerics: Numerics, weight, rigid_jumps,
     """The supports' normal acceleration through the compliant landing (`weight` of it, blended with the rigid
     law's half-sine of jumps `rigid_jumps`), sampled on the peak window, and the `Landing`."""
     window = landing_window(scene, numerics)
-    landing = scene_landing(scene, window)
+    landing = scene_landing(scene, window, numerics.landing_steps)
     t = jnp.linspace(0.0, 1.0, samples) * window
     if scene.housing.is_box:
         return _box_landing_motion(scene, numerics, weight, rigid_jumps, landing, t, window)

@@ -598,8 +598,24 @@ def orientation_table(scene: Scene, nodes=None, progress: bool = False) -> Orien
 
 def solve_landings(samples, axes, idx, progress: bool = False):
     """Peak stress, strain, deflection and flags of drops `idx` of a batch on the compliant landing's path
-    (`simulate`'s, default numerics), `LANDING_BATCH` at a time: four arrays of len(idx)."""
+    (`simulate`'s, default numerics), `LANDING_BATCH` at a time: four arrays of len(idx). Each drop is solved
+    first with a step limit of `FIRST_LANDING_STEPS`, whose smaller buffer makes the solve cheaper, and again with
+    `simulate`'s (`Numerics.landing_steps`) where that is not enough: the same numbers as `simulate`'s."""
     idx = np.asarray(idx, dtype=int)
+    out = _solve_batches(samples, axes, idx, FIRST_LANDING_STEPS, progress)
+    again = np.flatnonzero(out[3] & Flag.SOLVER_FAILED)
+    if again.size:
+        for o, v in zip(out, _solve_batches(samples, axes, idx[again], Numerics().landing_steps, progress)):
+            o[again] = v
+    return out
+
+
+FIRST_LANDING_STEPS = 4096
+"""`solve_landings`' first step limit: random near-flat drops of the embedded scenes took 1000 to 5400 steps; with
+this limit (against 16384) a table node of the default scene cost 19 against 29 ms, to the same numbers."""
+
+
+def _solve_batches(samples, axes, idx, landing_steps: int, progress: bool):
     out = [np.empty(idx.size, dtype) for dtype in (float_dtype(),) * 3 + (np.int32,)]
     leaves, treedef = jax.tree_util.tree_flatten(samples)
     batched = [a is not None for a in treedef.flatten_up_to(axes)]
@@ -608,7 +624,7 @@ def solve_landings(samples, axes, idx, progress: bool = False):
         part = idx[start:start + LANDING_BATCH]
         padded = np.concatenate([part, np.repeat(part[-1:], LANDING_BATCH - part.size)])  # one compiled shape
         chunk = treedef.unflatten([np.asarray(v)[padded] if b else v for v, b in zip(leaves, batched)])
-        for o, v in zip(out, _compliant_peaks(chunk, axes)):
+        for o, v in zip(out, _compliant_peaks(chunk, axes, landing_steps)):
             o[start:start + part.size] = np.asarray(v)[:part.size]
     return out
 
@@ -630,9 +646,9 @@ def _weights(samples, axes, from_rest: bool = False):
 
 
 @filter_jit
-def _compliant_peaks(samples, axes):
+def _compliant_peaks(samples, axes, landing_steps: int):
     def one(s):
-        r = _simulate(s, Numerics(), None, "compliant")
+        r = _simulate(s, Numerics(landing_steps=landing_steps), None, "compliant")
         return r.peak.stress, r.peak.strain, r.peak.deflection, r.flags
 
     return jax.vmap(one, in_axes=(axes,))(samples)
