@@ -277,14 +277,15 @@ def landing_bench(n_drops: int = 1 << 20) -> dict:
     an `orientation_table` built in the call; then, timed again with other drops, from the table it kept), against
     the same call on the rigid law (the first strike alone, the superposed fast path), after compiling: drops/s of
     each, the band's share and nodes, and the seconds per node of the table."""
-    from ._studies.montecarlo import _TABLES, _nodes_around, orientation_table
+    from ._studies.montecarlo import _GRID_WEIGHTS, _TABLES, _nodes_around
 
     scene, key = Scene.default(), jax.random.PRNGKey(2026)
     rigid = _rigid(scene)
     montecarlo(rigid, n_drops, key, progress=False)
-    orientation_table(scene, np.arange(8))  # compiles the landing's path
+    montecarlo(scene, n_drops, jax.random.PRNGKey(1), progress=False)  # compiles every program of the call
     rigid_s = _median_time(lambda: montecarlo(rigid, n_drops, key, progress=False), 3)
     _TABLES.clear()
+    _GRID_WEIGHTS.clear()
     start = time.perf_counter()
     result = montecarlo(scene, n_drops, key, progress=False)
     auto_s = time.perf_counter() - start

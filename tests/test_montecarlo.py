@@ -407,7 +407,7 @@ def test_landings_that_outgrow_the_first_step_limit_are_solved_again():
     samples = eqx.tree_at(lambda s: (s.drop.orientation, s.contact.friction, s.contact.restitution), scene,
                           (o, mu, e))
     axes = mc.sample_axes(samples, scene)
-    first = mc._solve_batches(samples, axes, np.arange(4), mc.FIRST_LANDING_STEPS, False)
+    first = mc._solve_batches(samples, axes, np.arange(4), bd.Numerics(landing_steps=mc.FIRST_LANDING_STEPS), False)
     assert list(first[3] & bd.Flag.SOLVER_FAILED) == [bd.Flag.SOLVER_FAILED] * 3 + [0]
     stress, strain, deflection, flags = mc.solve_landings(samples, axes, np.arange(4))
     assert not np.any(flags)

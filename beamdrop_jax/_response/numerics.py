@@ -52,7 +52,9 @@ class Numerics(eqx.Module):
     - `landing_steps`: the step limit of the compliant landing's solve (near-flat drops; `Contact.model`). Its
       dense solution's buffer is this long, and allocating it is a third of a landing's cost: random near-flat
       drops of the embedded scenes took 1000 to 5400 steps, a nearly plastic contact (restitution 0.02) 15,000.
-      A landing that needs more is flagged `Flag.SOLVER_FAILED`; raise it then.
+      A landing that needs more is flagged `Flag.SOLVER_FAILED`; raise it then. `landing_tolerance`: its step
+      controller's rtol and atol on the nondimensional state (tight: the gradients through the landing follow
+      the solver's steps).
     """
 
     method: str = eqx.field(static=True, default="closed_form")
@@ -78,6 +80,7 @@ class Numerics(eqx.Module):
     frequency_growth: int | None = eqx.field(static=True, default=None)
     from_rest: bool = eqx.field(static=True, default=False)
     landing_steps: int = eqx.field(static=True, default=16384)
+    landing_tolerance: float = eqx.field(static=True, default=1e-10)
 
     def __check_init__(self):
         def bad(field, value, valid):
@@ -100,7 +103,7 @@ class Numerics(eqx.Module):
         as_int(self.newton_steps, "Numerics.newton_steps", 0)
         if self.window is not None:
             as_real(self.window, "Numerics.window", Range(0.0, 10.0, lo_open=True, unit="s"))
-        for name in ("rtol", "atol", "convergence_rtol"):
+        for name in ("rtol", "atol", "convergence_rtol", "landing_tolerance"):
             as_real(getattr(self, name), f"Numerics.{name}", Range(0.0, 1.0, lo_open=True))
         if self.pulse_modes is not None:
             as_real(self.pulse_modes, "Numerics.pulse_modes", Range(0.0, 100.0, lo_open=True))

@@ -586,26 +586,36 @@ def _kept_table(scene: Scene, key: str, nodes, progress: bool) -> OrientationTab
 
 def orientation_table(scene: Scene, nodes=None, progress: bool = False) -> OrientationTable:
     """The near-flat band of a plane section's drops over orientation: peaks on the compliant landing's path
-    (`simulate`'s, default numerics) at orientations k `ORIENTATION_STEP` for k in `nodes` (default: every node
-    whose drop, or a neighbour's, lands nearly flat; about 730 on the default scene). `montecarlo` uses it when
+    (`simulate`'s, default numerics but `TABLE_LANDING_TOLERANCE`) at orientations k `ORIENTATION_STEP` for k in
+    `nodes` (default: every node whose drop, or a neighbour's, lands nearly flat; 404 on the default scene). `montecarlo` uses it when
     only the orientation varies and the band holds more drops than the table has nodes: within 1 % of each drop's
     own solve (tests/test_montecarlo.py)."""
     nodes = _orientation_nodes(scene) if nodes is None else np.asarray(nodes, dtype=int)
     samples = eqx.tree_at(lambda s: s.drop.orientation, scene, jnp.asarray(nodes * ORIENTATION_STEP))
-    values = solve_landings(samples, sample_axes(samples, scene), np.arange(nodes.size), progress)
+    values = solve_landings(samples, sample_axes(samples, scene), np.arange(nodes.size), progress,
+                            TABLE_LANDING_TOLERANCE)
     return OrientationTable(nodes, tuple(values))
 
 
-def solve_landings(samples, axes, idx, progress: bool = False):
+TABLE_LANDING_TOLERANCE = 1e-8
+"""`Numerics.landing_tolerance` of `orientation_table`'s solves: on the default scene's 404 nodes their peaks
+moved by at most 2.6e-7 of the largest from those at simulate's 1e-10 (the table's linear interpolation errs by
+up to 5e-3), at 13 against 17 ms a node."""
+
+
+def solve_landings(samples, axes, idx, progress: bool = False, tolerance: float = Numerics().landing_tolerance):
     """Peak stress, strain, deflection and flags of drops `idx` of a batch on the compliant landing's path
-    (`simulate`'s, default numerics), `LANDING_BATCH` at a time: four arrays of len(idx). Each drop is solved
-    first with a step limit of `FIRST_LANDING_STEPS`, whose smaller buffer makes the solve cheaper, and again with
-    `simulate`'s (`Numerics.landing_steps`) where that is not enough: the same numbers as `simulate`'s."""
+    (`simulate`'s, default numerics but `Numerics.landing_tolerance`), `LANDING_BATCH` at a time: four arrays of
+    len(idx). Each drop is solved first with a step limit of `FIRST_LANDING_STEPS`, whose smaller buffer makes the
+    solve cheaper, and again with `simulate`'s (`Numerics.landing_steps`) where that is not enough: the same
+    numbers as `simulate`'s."""
     idx = np.asarray(idx, dtype=int)
-    out = _solve_batches(samples, axes, idx, FIRST_LANDING_STEPS, progress)
+    out = _solve_batches(samples, axes, idx, Numerics(landing_steps=FIRST_LANDING_STEPS, landing_tolerance=tolerance),
+                         progress)
     again = np.flatnonzero(out[3] & Flag.SOLVER_FAILED)
     if again.size:
-        for o, v in zip(out, _solve_batches(samples, axes, idx[again], Numerics().landing_steps, progress)):
+        retry = _solve_batches(samples, axes, idx[again], Numerics(landing_tolerance=tolerance), progress)
+        for o, v in zip(out, retry):
             o[again] = v
     return out
 
@@ -615,7 +625,7 @@ FIRST_LANDING_STEPS = 4096
 this limit (against 16384) a table node of the default scene cost 19 against 29 ms, to the same numbers."""
 
 
-def _solve_batches(samples, axes, idx, landing_steps: int, progress: bool):
+def _solve_batches(samples, axes, idx, numerics: Numerics, progress: bool):
     out = [np.empty(idx.size, dtype) for dtype in (float_dtype(),) * 3 + (np.int32,)]
     leaves, treedef = jax.tree_util.tree_flatten(samples)
     batched = [a is not None for a in treedef.flatten_up_to(axes)]
@@ -624,7 +634,7 @@ def _solve_batches(samples, axes, idx, landing_steps: int, progress: bool):
         part = idx[start:start + LANDING_BATCH]
         padded = np.concatenate([part, np.repeat(part[-1:], LANDING_BATCH - part.size)])  # one compiled shape
         chunk = treedef.unflatten([np.asarray(v)[padded] if b else v for v, b in zip(leaves, batched)])
-        for o, v in zip(out, _compliant_peaks(chunk, axes, landing_steps)):
+        for o, v in zip(out, _compliant_peaks(chunk, axes, numerics)):
             o[start:start + part.size] = np.asarray(v)[:part.size]
     return out
 
@@ -646,9 +656,9 @@ def _weights(samples, axes, from_rest: bool = False):
 
 
 @filter_jit
-def _compliant_peaks(samples, axes, landing_steps: int):
+def _compliant_peaks(samples, axes, numerics: Numerics):
     def one(s):
-        r = _simulate(s, Numerics(landing_steps=landing_steps), None, "compliant")
+        r = _simulate(s, numerics, None, "compliant")
         return r.peak.stress, r.peak.strain, r.peak.deflection, r.flags
 
     return jax.vmap(one, in_axes=(axes,))(samples)
