@@ -395,9 +395,9 @@ def test_near_flat_band_reads_a_table_over_orientation(monkeypatch):
 
 
 def test_landings_that_outgrow_the_first_step_limit_are_solved_again():
-    """`solve_landings` solves with a short step limit first (a smaller dense buffer) and again with `simulate`'s
-    where that is not enough: nearly plastic near-flat landings (restitution 0.012 to 0.017, 4900 to 6100 steps)
-    and an ordinary one, against `simulate` on each drop."""
+    """`solve_landings` (and `simulate`) solve with a short step limit first (a smaller dense buffer) and again
+    with `Numerics.landing_steps` where that is not enough: nearly plastic near-flat landings (restitution 0.012 to
+    0.017, 4900 to 6100 steps) and an ordinary one, the batch against `simulate` on each drop."""
     from beamdrop_jax._studies import montecarlo as mc
 
     scene = bd.Scene.default()
@@ -419,3 +419,10 @@ def test_landings_that_outgrow_the_first_step_limit_are_solved_again():
                                    [float(res.peak.stress), float(res.peak.strain), float(res.peak.deflection)],
                                    rtol=1e-9)
     assert first[0][3] == stress[3]  # a landing within the first limit: the same solve
+    # simulate solves again the same way; a limit the user sets is kept (a flag and NaN), a bad one named.
+    short = bd.simulate(scene.replace(**{"drop.orientation": cases[0][0], "contact.friction": cases[0][1],
+                                         "contact.restitution": cases[0][2]}),
+                        bd.Numerics(landing_steps=mc.FIRST_LANDING_STEPS))
+    assert int(short.flags) & bd.Flag.SOLVER_FAILED and math.isnan(float(short.peak.stress))
+    with pytest.raises(ValueError, match="Numerics.landing_steps"):
+        bd.Numerics(landing_steps=0)

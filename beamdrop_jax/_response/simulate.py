@@ -20,7 +20,7 @@ from .._impact.clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
 from .._impact.kinematics import housing_impact, plane_drop
 from .._impact.motion import AbstractMotion, PulseTrain
 from .._scene.containers import Scene, _largest, check_scene, require_single, scene_flags
-from .landing_path import compliant_weight, first_jumps, landing_motion
+from .landing_path import FIRST_LANDING_STEPS, compliant_weight, first_jumps, landing_motion
 from .line import _respond_line
 from .numerics import Numerics
 from .results import Response
@@ -206,6 +206,16 @@ def _raise_if_not_from_rest(scene: Scene, numerics: Numerics) -> None:
                              "= 0, or Numerics.from_rest = False")
 
 
+def _compliant_eagerly(scene: Scene, numerics: Numerics, points) -> Response:
+    """A concrete drop on the compliant landing's path: solved first with a step limit of `FIRST_LANDING_STEPS`
+    (a smaller dense buffer), again with `numerics.landing_steps` where that is not enough; the same numbers."""
+    first = dataclasses.replace(numerics, landing_steps=min(FIRST_LANDING_STEPS, numerics.landing_steps))
+    response = _simulate_jit(scene, first, points, landing="compliant")
+    if first.landing_steps < numerics.landing_steps and int(response.flags) & Flag.SOLVER_FAILED:
+        response = _simulate_jit(scene, numerics, points, landing="compliant")
+    return response
+
+
 def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Response:
     """Simulate one drop: the housing's corner impact (and with `Numerics(max_impacts=K)` the clattering impacts
     after it), the board's support jumps, its vibration, and the peak bending stress, strain and deflection, where
@@ -226,13 +236,16 @@ def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Res
     _raise_if_out_of_plane(scene, numerics)
     _raise_if_not_from_rest(scene, numerics)
     kind = _landing_kind(scene, numerics)
-    response = _simulate_jit(scene, numerics, points, landing=kind)
+    if kind == "compliant" and is_concrete(scene):
+        response = _compliant_eagerly(scene, numerics, points)
+    else:
+        response = _simulate_jit(scene, numerics, points, landing=kind)
     if kind == "rigid" and scene.contact.model == "auto" and numerics.max_impacts == 1:
         wanted = response.landing_weight
         if not is_concrete(wanted):  # a concrete scene closed over by a user's jit
             response = _simulate_jit(scene, numerics, points, landing="either")
         elif float(wanted) > 0:  # strikes overlap: the compliant landing
-            response = _simulate_jit(scene, numerics, points, landing="compliant")
+            response = _compliant_eagerly(scene, numerics, points)
     if is_concrete(scene, response.flags) and int(response.flags):
         _raise_eagerly(scene, numerics, response.flags, response.impacts, "simulate")
     return response

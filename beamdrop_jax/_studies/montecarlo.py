@@ -26,7 +26,7 @@ from .._scene.containers import Scene, check_scene
 from .._response.numerics import Numerics
 from .._response.objectives import _scene_peaks
 from .._impact.kinematics import housing_impact
-from .._response.landing_path import compliant_weight
+from .._response.landing_path import FIRST_LANDING_STEPS, compliant_weight
 from .._response.simulate import _simulate, drop_motion
 from .._response.superposition import superposes, superposition_table, table_numerics, table_peaks
 from .._common.compile import filter_jit
@@ -618,11 +618,6 @@ def solve_landings(samples, axes, idx, progress: bool = False, tolerance: float 
         for o, v in zip(out, retry):
             o[again] = v
     return out
-
-
-FIRST_LANDING_STEPS = 4096
-"""`solve_landings`' first step limit: random near-flat drops of the embedded scenes took 1000 to 5400 steps; with
-this limit (against 16384) a table node of the default scene cost 19 against 29 ms, to the same numbers."""
 
 
 def _solve_batches(samples, axes, idx, numerics: Numerics, progress: bool):
