@@ -394,12 +394,16 @@ def test_near_flat_band_reads_a_table_over_orientation(monkeypatch):
         bd.montecarlo(scene, 64, key, heights, progress=False, max_landings=10)
 
 
-def test_landings_that_outgrow_the_first_step_limit_are_solved_again():
-    """`solve_landings` (and `simulate`) solve with a short step limit first (a smaller dense buffer) and again
-    with `Numerics.landing_steps` where that is not enough: nearly plastic near-flat landings (restitution 0.012 to
-    0.017, 4900 to 6100 steps) and an ordinary one, the batch against `simulate` on each drop."""
+def test_landings_that_outgrow_the_first_step_limit_are_solved_again(monkeypatch):
+    """`solve_landings` and `simulate` solve a near-flat landing with a short step limit first (a smaller dense
+    buffer) and again with `Numerics.landing_steps` where that is not enough. Nearly plastic near-flat landings
+    (restitution 0.012 to 0.017, 4900 to 6100 steps) outgrow a first limit of 4096; an ordinary one does not. The
+    batch against `simulate` on each drop."""
+    import beamdrop_jax._response.simulate as simulate_module
     from beamdrop_jax._studies import montecarlo as mc
 
+    monkeypatch.setattr(simulate_module, "FIRST_LANDING_STEPS", 4096)
+    short = bd.Numerics(landing_steps=4096)
     scene = bd.Scene.default()
     cases = [(0.01569, 0.4705, 0.01215), (0.03335, 0.3091, 0.01623), (0.00920, 0.4220, 0.01727),
              (0.00873, 0.3, 0.4)]  # (orientation rad, friction, restitution)
@@ -407,22 +411,21 @@ def test_landings_that_outgrow_the_first_step_limit_are_solved_again():
     samples = eqx.tree_at(lambda s: (s.drop.orientation, s.contact.friction, s.contact.restitution), scene,
                           (o, mu, e))
     axes = mc.sample_axes(samples, scene)
-    first = mc._solve_batches(samples, axes, np.arange(4), bd.Numerics(landing_steps=mc.FIRST_LANDING_STEPS), False)
+    first = mc._solve_batches(samples, axes, np.arange(4), short, False)
     assert list(first[3] & bd.Flag.SOLVER_FAILED) == [bd.Flag.SOLVER_FAILED] * 3 + [0]
-    stress, strain, deflection, flags = mc.solve_landings(samples, axes, np.arange(4))
+    stress, strain, deflection, flags = mc.solve_landings(samples, axes, np.arange(4), first=short)
     assert not np.any(flags)
-    for i, (theta, f, r) in enumerate(cases):
-        res = bd.simulate(scene.replace(**{"drop.orientation": theta, "contact.friction": f,
-                                           "contact.restitution": r}))
+    scenes = [scene.replace(**{"drop.orientation": theta, "contact.friction": f, "contact.restitution": r})
+              for theta, f, r in cases]
+    for i, one in enumerate(scenes):
+        res = bd.simulate(one)
         assert float(res.landing_weight) > 0 and int(res.flags) == 0
         np.testing.assert_allclose([stress[i], strain[i], deflection[i]],
                                    [float(res.peak.stress), float(res.peak.strain), float(res.peak.deflection)],
                                    rtol=1e-9)
     assert first[0][3] == stress[3]  # a landing within the first limit: the same solve
-    # simulate solves again the same way; a limit the user sets is kept (a flag and NaN), a bad one named.
-    short = bd.simulate(scene.replace(**{"drop.orientation": cases[0][0], "contact.friction": cases[0][1],
-                                         "contact.restitution": cases[0][2]}),
-                        bd.Numerics(landing_steps=mc.FIRST_LANDING_STEPS))
-    assert int(short.flags) & bd.Flag.SOLVER_FAILED and math.isnan(float(short.peak.stress))
+    # A limit the user sets is kept (a flag and NaN); a bad one is named.
+    kept = bd.simulate(scenes[0], short)
+    assert int(kept.flags) & bd.Flag.SOLVER_FAILED and math.isnan(float(kept.peak.stress))
     with pytest.raises(ValueError, match="Numerics.landing_steps"):
         bd.Numerics(landing_steps=0)

@@ -586,36 +586,36 @@ def _kept_table(scene: Scene, key: str, nodes, progress: bool) -> OrientationTab
 
 def orientation_table(scene: Scene, nodes=None, progress: bool = False) -> OrientationTable:
     """The near-flat band of a plane section's drops over orientation: peaks on the compliant landing's path
-    (`simulate`'s, default numerics but `TABLE_LANDING_TOLERANCE`) at orientations k `ORIENTATION_STEP` for k in
+    (`simulate`'s, default numerics but `TABLE_NUMERICS`' tolerance) at orientations k `ORIENTATION_STEP` for k in
     `nodes` (default: every node whose drop, or a neighbour's, lands nearly flat; 404 on the default scene). `montecarlo` uses it when
     only the orientation varies and the band holds more drops than the table has nodes: within 1 % of each drop's
     own solve (tests/test_montecarlo.py)."""
     nodes = _orientation_nodes(scene) if nodes is None else np.asarray(nodes, dtype=int)
     samples = eqx.tree_at(lambda s: s.drop.orientation, scene, jnp.asarray(nodes * ORIENTATION_STEP))
-    values = solve_landings(samples, sample_axes(samples, scene), np.arange(nodes.size), progress,
-                            TABLE_LANDING_TOLERANCE)
+    values = solve_landings(samples, sample_axes(samples, scene), np.arange(nodes.size), progress, TABLE_NUMERICS)
     return OrientationTable(nodes, tuple(values))
 
 
-TABLE_LANDING_TOLERANCE = 1e-8
-"""`Numerics.landing_tolerance` of `orientation_table`'s solves: on the default scene's 404 nodes their peaks
-moved by at most 2.6e-7 of the largest from those at simulate's 1e-10 (the table's linear interpolation errs by
-up to 5e-3), at 13 against 17 ms a node."""
+TABLE_NUMERICS = Numerics(landing_steps=4096, landing_tolerance=1e-8)
+"""The first solve of `orientation_table`'s nodes: its landings at a tolerance of 1e-8 (`simulate`'s: 1e-10)
+moved the default scene's 404 nodes' peaks by at most 2.6e-7 of the largest (the table's linear interpolation errs
+by up to 5e-3), and take fewer steps, so a shorter first limit suffices. Measured on 128 nodes a node cost 13 ms
+on the default beam (17 at 1e-10, 29 at 1e-10 with simulate's limit of 16384) and 106 ms on the JESD22 plate
+(129 with a first limit of 8192)."""
 
 
-def solve_landings(samples, axes, idx, progress: bool = False, tolerance: float = Numerics().landing_tolerance):
+def solve_landings(samples, axes, idx, progress: bool = False,
+                   first: Numerics = Numerics(landing_steps=FIRST_LANDING_STEPS)):
     """Peak stress, strain, deflection and flags of drops `idx` of a batch on the compliant landing's path
-    (`simulate`'s, default numerics but `Numerics.landing_tolerance`), `LANDING_BATCH` at a time: four arrays of
-    len(idx). Each drop is solved first with a step limit of `FIRST_LANDING_STEPS`, whose smaller buffer makes the
-    solve cheaper, and again with `simulate`'s (`Numerics.landing_steps`) where that is not enough: the same
-    numbers as `simulate`'s."""
+    (`simulate`'s, default numerics), `LANDING_BATCH` at a time: four arrays of len(idx). Each drop is solved first
+    with `first` (`simulate`'s first step limit, `FIRST_LANDING_STEPS`: a smaller dense buffer), and again with the
+    default `Numerics.landing_steps` where that is not enough: the same numbers as `simulate`'s."""
     idx = np.asarray(idx, dtype=int)
-    out = _solve_batches(samples, axes, idx, Numerics(landing_steps=FIRST_LANDING_STEPS, landing_tolerance=tolerance),
-                         progress)
+    out = _solve_batches(samples, axes, idx, first, progress)
     again = np.flatnonzero(out[3] & Flag.SOLVER_FAILED)
-    if again.size:
-        retry = _solve_batches(samples, axes, idx[again], Numerics(landing_tolerance=tolerance), progress)
-        for o, v in zip(out, retry):
+    last = dataclasses.replace(first, landing_steps=Numerics().landing_steps)
+    if again.size and last.landing_steps > first.landing_steps:
+        for o, v in zip(out, _solve_batches(samples, axes, idx[again], last, progress)):
             o[again] = v
     return out
 
