@@ -427,5 +427,15 @@ def test_landings_that_outgrow_the_first_step_limit_are_solved_again(monkeypatch
     # A limit the user sets is kept (a flag and NaN); a bad one is named.
     kept = bd.simulate(scenes[0], short)
     assert int(kept.flags) & bd.Flag.SOLVER_FAILED and math.isnan(float(kept.peak.stress))
+    # ... and the drop says what to raise, in the Python API and on the command line.
+    from beamdrop_jax.cli import main
+    from beamdrop_jax.cli._helpers import _cli_note
+
+    note = [n for n in bd.response_notes(scenes[0], kept) if "step limit" in n]
+    assert len(note) == 1 and "raise Numerics.landing_steps" in note[0]
+    assert "raise --landing-steps (Numerics.landing_steps, 4096 here)" in _cli_note(note[0], short)
+    with pytest.raises(SystemExit) as refused:
+        main(["drop", "--landing-steps", "20", "--no-plots"])
+    assert refused.value.code == 2
     with pytest.raises(ValueError, match="Numerics.landing_steps"):
         bd.Numerics(landing_steps=0)

@@ -8,7 +8,7 @@ from .._board.base import curvature_scale
 from .._board.beam import mode_shapes, wavenumbers
 from .._board.plate import surface_strain
 from .._board.search import field_on_grid
-from .._common.checks import Range, as_float, as_int, float_dtype, require
+from .._common.checks import Flag, Range, as_float, as_int, float_dtype, require
 from .._common.compile import filter_jit
 from .._scene.containers import Scene
 from .numerics import Numerics
@@ -97,6 +97,11 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
                      "(0.05-1 ms)")
     elif not bool(response.converged) and int(response.flags) == 0:
         notes.append(_not_converged(board, response))
+    if int(response.flags) & Flag.SOLVER_FAILED and response.landing_weight is not None and float(
+            response.landing_weight) > 0:
+        notes.append("the compliant landing's solve reached its step limit (a nearly plastic contact or a long "
+                     "landing; near-flat drops take 1000 to 6100 steps): raise Numerics.landing_steps (16384 by "
+                     "default)")
     if float(board.youngs_modulus) < 1e6 or float(board.thickness) > 0.05:
         notes.append(f"the board is not an engineering board (E = {float(board.youngs_modulus):.4g} Pa, thickness "
                      f"{float(board.thickness):.4g} m): the thesis scene's nondimensional units, so stresses in MPa "

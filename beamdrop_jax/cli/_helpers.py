@@ -252,6 +252,8 @@ def _cli_note(note: str, numerics) -> str:
          "give more modes with --n-modes N (or, from Python, raise Numerics.pulse_modes: modes up to f_k x "
          "duration >= 2 by default)"),
         ("give Contact.duration a physical value", "give the scene file's [contact] duration a physical value"),
+        ("raise Numerics.landing_steps (16384 by default)", f"raise --landing-steps (Numerics.landing_steps, {numerics.landing_steps} "
+                                         "here)"),
         ('(Numerics(method="diffrax", stretching=True))',
          '(from Python: Numerics(method="diffrax", stretching=True); no command-line option)'),
     ):
@@ -387,7 +389,7 @@ def _save(output, fig, name, args):
 def _numerics(args, **overrides):
     import beamdrop_jax as bd
 
-    kw = {k: getattr(args, k) for k in ("method", "solver", "n_modes", "max_modes", "max_impacts")
+    kw = {k: getattr(args, k) for k in ("method", "solver", "n_modes", "max_modes", "max_impacts", "landing_steps")
           if getattr(args, k, None)}
     kw.update(overrides)
     return bd.Numerics(**kw)
