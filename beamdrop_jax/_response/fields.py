@@ -100,7 +100,7 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
     if int(response.flags) & Flag.SOLVER_FAILED and response.landing_weight is not None and float(
             response.landing_weight) > 0:
         notes.append("the compliant landing's solve reached its step limit (a nearly plastic contact or a long "
-                     "landing; near-flat drops take 1000 to 6100 steps): raise Numerics.landing_steps (16384 by "
+                     "landing; near-flat drops take 1000 to 11,000 steps): raise Numerics.landing_steps (16384 by "
                      "default)")
     if float(board.youngs_modulus) < 1e6 or float(board.thickness) > 0.05:
         notes.append(f"the board is not an engineering board (E = {float(board.youngs_modulus):.4g} Pa, thickness "
