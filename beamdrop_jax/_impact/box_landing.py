@@ -28,7 +28,6 @@ a failed solve is `Flag.SOLVER_FAILED`.
 
 import math
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -164,7 +163,7 @@ class BoxLanding(eqx.Module):
     steps: Int[Array, ""]
     flags: Int[Array, ""]
     model: _Model3
-    solution: diffrax.Solution
+    solution: eqx.Module  # a diffrax.Solution
     attitude: Float[Array, "3 3"]
     v0: Float[Array, "3"]
     w0: Float[Array, "3"]

@@ -52,7 +52,6 @@ Everything inside is nondimensional: K / trace(K), u / |u0|, impulses / (|u0| / 
 
 import functools
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -69,7 +68,7 @@ LAWS_3D = ("poisson", "stronge")
 _SLIP_STOP = 1e-13  # the slip stop: |u_t| below this times |u0| (float64; float32 uses 1e-6)
 _TAU_END = 1e12  # the sliding clock's bound: a segment ends at an event or at `_MAX_STEPS` first
 _MAX_STEPS = 4096
-_SOLVER = diffrax.Dopri8
+_SOLVER = "Dopri8"  # a diffrax solver's name: diffrax is imported where a solve is traced, not on import
 _TOL = 1e-12  # the solves' relative and absolute tolerances (float64; float32 uses 1e-6)
 
 
@@ -291,6 +290,8 @@ def _solve(theta, y0, log_stop, target: _Target, can_stick, idle, tol, sensitivi
     (7 x 16) by the variational equations dS/dtau = J_y S + [0 | J_theta]. Returns y (at the located target, else
     at the end), S (or None), the event mask (reached, stopped, settled, aligned) and the accepted steps. No derivative
     passes through diffrax here (`_walk` supplies them), so its loops are plain `lax` ones."""
+    import diffrax
+
     c = _unpack(theta, log_stop)
 
     def field(tau, Y, args):
@@ -317,7 +318,7 @@ def _solve(theta, y0, log_stop, target: _Target, can_stick, idle, tol, sensitivi
     def skip(t, Y, args, **kwargs):
         return idle
 
-    solver = _SOLVER(scan_kind="lax")
+    solver = getattr(diffrax, _SOLVER)(scan_kind="lax")
     Y0 = (y0, jnp.eye(7, 16, dtype=y0.dtype)) if sensitivities else (y0,)
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(field), solver, 0.0, _TAU_END, None, Y0,
