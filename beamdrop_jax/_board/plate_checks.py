@@ -297,7 +297,7 @@ def raise_if_outside_theory(board, flags, what: str) -> None:
 def plate_notes(plate, response) -> list[str]:
     """What a reader of a plate's numbers should know beyond a beam's notes (`response_notes`)."""
     notes = []
-    h, short = float(plate.thickness), float(min(plate.length, plate.width))
+    h, short = float(plate.thickness), min(float(plate.length), float(plate.width))  # floats: no eager JAX op
     if h > short / 20:
         notes.append(f"the plate's thickness is {h / short:.2g} of its shorter side: thin-plate (Kirchhoff) theory "
                      "neglects transverse shear and rotary inertia, which lower the frequencies (by about 1 % at "

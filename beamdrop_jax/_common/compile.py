@@ -111,7 +111,9 @@ def keep_programs(folder):
 def _initialise_lapack() -> None:
     """Point jaxlib's LAPACK kernels at their routines, as lowering `eigh` or `solve` does in a process that
     compiles: a kept program that calls them (every plate program: `eigh`) loads without lowering, and without
-    this its first call jumps to an unset routine (a segmentation fault)."""
+    this its first call jumps to an unset routine (a segmentation fault). Called before a kept program that needs
+    it runs, on the caller's thread: it imports SciPy's LAPACK (a tenth of a second, under Python's lock), which a
+    program without LAPACK calls (a beam's) never needs."""
     try:
         from jaxlib import lapack
 
@@ -123,29 +125,41 @@ def _initialise_lapack() -> None:
 
 
 def _deserialise(data: bytes):
-    """A kept program's file contents -> (executable, pickled output template)."""
-    _initialise_lapack()
-    payload, in_tree, out_tree, template = pickle.loads(data)
-    return serialize_executable.deserialize_and_load(payload, in_tree, out_tree), template
+    """A kept program's file contents -> (executable, pickled output template, whether it calls LAPACK)."""
+    return _load(pickle.loads(data))
+
+
+def _load(parts):
+    payload, in_tree, out_tree, template, lapack = parts
+    return serialize_executable.deserialize_and_load(payload, in_tree, out_tree), template, lapack
 
 
 def preload_programs(folder, names) -> threading.Thread:
     """Start loading the kept programs `names` (file names in `folder`, as collected by `keep_programs`) in a
     background thread; a call that needs one of them then waits for it instead of loading it itself. A hint only:
-    a program absent, unreadable or never called costs its loading and nothing else. Returns the thread."""
-    jobs = [(Path(folder) / name, Future()) for name in names if isinstance(name, str) and "/" not in name]
-    for path, future in jobs:
-        _preloaded[path] = future
+    a program absent, unreadable or never called costs its loading and nothing else. Where one calls LAPACK, its
+    routines are set up here, on the caller's thread, while the thread loads. Returns the thread."""
+    jobs = []
+    for name in names:
+        if isinstance(name, str) and "/" not in name:
+            path, future = Path(folder) / name, Future()
+            _preloaded[path] = future
+            try:  # read and unpickled here (milliseconds); loaded by the thread
+                jobs.append((pickle.loads(path.read_bytes()), future))
+            except Exception as error:  # noqa: BLE001 - the call loads or compiles it itself and says why
+                future.set_exception(error)
 
     def load():
-        for path, future in jobs:
+        for parts, future in jobs:
             try:
-                future.set_result(_deserialise(path.read_bytes()))
-            except Exception as error:  # noqa: BLE001 - the call loads or compiles it itself and says why
+                future.set_result(_load(parts))
+            except Exception as error:  # noqa: BLE001 - as above
                 future.set_exception(error)
 
     thread = threading.Thread(target=load, name="beamdrop-preload", daemon=True)
     thread.start()
+    if any(parts[-1] is True for parts, _ in jobs):
+        _initialise_lapack()
     return thread
 
 
@@ -286,8 +300,10 @@ class _Compiled:
             path = folder / f"{self._name.rsplit('.', 1)[-1]}-{key}.xla"
             preloaded = _preloaded.pop(path, None)
             try:
-                compiled, template = (_deserialise(path.read_bytes()) if preloaded is None
-                                      else preloaded.result())
+                compiled, template, lapack = (_deserialise(path.read_bytes()) if preloaded is None
+                                              else preloaded.result())
+                if lapack:
+                    _initialise_lapack()
                 template = pickle.loads(template)
                 with contextlib.suppress(OSError):
                     os.utime(path)  # used now: `prune_folder` removes the least recently used first
@@ -301,8 +317,9 @@ class _Compiled:
                         scratch = path.with_suffix(f".{os.getpid()}")
                         # The template pickled apart: it names the package's classes, which a preloading thread
                         # would have to import.
+                        lapack = "lapack_" in compiled.as_text()  # its custom calls' targets
                         scratch.write_bytes(pickle.dumps((*serialize_executable.serialize(compiled),
-                                                          pickle.dumps(template))))
+                                                          pickle.dumps(template), lapack)))
                         scratch.replace(path)  # whole files only: another process may be reading
                     except Exception:  # noqa: BLE001 - an output that does not pickle, a full disk: not kept
                         pass
