@@ -335,6 +335,22 @@ def _screwed_scene():
     return scene, bd.Numerics(n_modes=6)
 
 
+def test_a_plate_search_error_covers_what_its_refinement_left():
+    """`Peak.search_error` estimates how far the refined peak stress lies below the converged one (30 Newton steps,
+    8 candidates) to within a factor of 2, however few steps the search took: it was the last step's gain alone, 0
+    after a single evaluation (2e-3 short here), and 0 for a search stalled a few ulps inside an edge (4e-6 short)."""
+    scene, numerics = _screwed_scene()
+    for orientation in (np.radians(30.0), 1.2):
+        drop = scene.replace(**{"drop.orientation": orientation})
+        converged = bd.simulate(drop, dataclasses.replace(numerics, newton_steps=30, candidates=8)).peak
+        assert float(converged.search_error) < 1e-9
+        for steps in (0, 1):
+            peak = bd.simulate(drop, dataclasses.replace(numerics, newton_steps=steps)).peak
+            short = (float(converged.stress) - float(peak.stress)) / float(converged.stress)
+            assert -1e-12 <= short <= 2 * float(peak.search_error), (orientation, steps, short, float(peak.search_error))
+            assert short > 1e-7 or steps  # one evaluation leaves a gap the estimate must see
+
+
 def test_sensitivities_of_a_plate_obey_the_scaling_laws_and_central_differences():
     scene, numerics = _screwed_scene()
     rows = {r.field: r for r in bd.sensitivities(scene, numerics)}

@@ -113,7 +113,9 @@ class Peak(eqx.Module):
 
     `stress` (Pa), `strain` (-), where (`x` from end A, m) and when (`t`, s); `deflection` (m, relative to the
     chord AB) with its own `deflection_x`, `deflection_t`; `search_error`: relative error estimate of the stress
-    peak search. With mid-plane stretching (`Numerics(stretching=True)`) `stress` and `strain` are those of the
+    peak search's refinement (on a plate: what a Newton step would still gain, or the last step's gain, whichever
+    is larger; within a factor of 2 of the remaining gap in the tests). A maximum that the search grid does not
+    resolve (two within one cell) is beyond it: `Numerics.points_per_period` and the plate's basis set the grid. With mid-plane stretching (`Numerics(stretching=True)`) `stress` and `strain` are those of the
     face in tension, bending plus membrane, and `membrane_stress` (Pa) is the membrane part at the peak (0
     without stretching). On a plate `stress` and `strain` are the largest principal surface values, `y` and
     `deflection_y` (m, from the centre line) say where across the width (0 for a beam)."""

@@ -107,15 +107,16 @@ def _legendre(xp, s, n: int):
     return tuple(xp.concatenate([xp.stack(f, axis=-1), r], axis=-1)[..., :n] for f, r in zip(first, rest))
 
 
-def _basis_1d(xp, z, n: int, codes: tuple[int, int], sines: bool):
-    """Values and first and second derivatives (..., n) of the 1-D basis at z in [0, 1] (z = xi, or eta + 1/2)."""
+def _basis_1d(xp, z, n: int, codes: tuple[int, int], sines: bool, legendre=None):
+    """Values and first and second derivatives (..., n) of the 1-D basis at z in [0, 1] (z = xi, or eta + 1/2);
+    `legendre`: `_legendre(xp, 2 z - 1, n)` where the caller has it."""
     z = z[..., None]
     if sines:
         k = math.pi * np.arange(1, n + 1)
         sn, cs = xp.sin(k * z), xp.cos(k * z)
         return sn, k * cs, -(k**2) * sn
     p, q = codes
-    P, dP, ddP = _legendre(xp, 2 * z[..., 0] - 1, n)
+    P, dP, ddP = _legendre(xp, 2 * z[..., 0] - 1, n) if legendre is None else legendre
     dP, ddP = 2 * dP, 4 * ddP  # d/dz of P(2z - 1)
     f = z**p * (1 - z) ** q
     df = (p * z ** max(p - 1, 0) * (1 - z) ** q if p else 0.0) - (q * z**p * (1 - z) ** max(q - 1, 0) if q else 0.0)
@@ -136,11 +137,11 @@ class _Basis(eqx.Module):
     y_codes: tuple = eqx.field(static=True)
     sines: bool = eqx.field(static=True)
 
-    def x(self, xp, xi):
-        return _basis_1d(xp, xi, self.nx, self.x_codes, self.sines)
+    def x(self, xp, xi, legendre=None):
+        return _basis_1d(xp, xi, self.nx, self.x_codes, self.sines, legendre)
 
-    def y(self, xp, eta):
-        return _basis_1d(xp, eta + 0.5, self.ny, self.y_codes, False)
+    def y(self, xp, eta, legendre=None):
+        return _basis_1d(xp, eta + 0.5, self.ny, self.y_codes, False, legendre)
 
 
 @functools.lru_cache(maxsize=32)
@@ -393,8 +394,13 @@ def _values(plate: Plate, xi, eta, derivatives: bool = False):
     """Basis products at points (xi, eta) (normalised coordinates; shapes broadcast): (..., nx * ny) values, or
     with `derivatives` (psi, psi_xx, psi_yy, psi_xy) in physical units (1/m^2)."""
     basis = _basis_of(plate)
-    X = basis.x(jnp, jnp.asarray(xi, dtype=float_dtype()))
-    Y = basis.y(jnp, jnp.asarray(eta, dtype=float_dtype()))
+    xi, eta = jnp.asarray(xi, dtype=float_dtype()), jnp.asarray(eta, dtype=float_dtype())
+    if basis.sines:
+        X, Y = basis.x(jnp, xi), basis.y(jnp, eta)
+    else:  # both directions' polynomials from one recurrence (one loop in the program, not two)
+        both = _legendre(jnp, 2 * jnp.stack(jnp.broadcast_arrays(xi, eta + 0.5)) - 1, max(basis.nx, basis.ny))
+        X = basis.x(jnp, xi, tuple(v[0, ..., : basis.nx] for v in both))
+        Y = basis.y(jnp, eta, tuple(v[1, ..., : basis.ny] for v in both))
     outer = lambda a, b: (a[..., :, None] * b[..., None, :]).reshape(a.shape[:-1] + (-1,))  # noqa: E731
     if not derivatives:
         return outer(X[0], Y[0])

@@ -276,9 +276,12 @@ def find_peak(
     return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b])[order], peaks, coarse_peaks)
 
 
+_ON_BOUND = 1e-9  # cells: a plate search's coordinate this near a bound is on it
+
+
 class PlatePeak(eqx.Module):
     """Peak of a surface measure over a plate and the window: `value`, where (`x` from end A, `y` from the centre
-    line, m), when (`t`, s), and `error` (relative gain of the last refinement step)."""
+    line, m), when (`t`, s), and `error` (relative error estimate of the value: `find_plate_peak`)."""
 
     value: Float[Array, ""]
     x: Float[Array, ""]
@@ -287,18 +290,27 @@ class PlatePeak(eqx.Module):
     error: Float[Array, ""]
 
 
+def _over_mounts(plate, point, move):
+    """`move((x, y), mount)` applied for each of the plate's mounts in turn, from `point` (a loop: one copy of
+    `move` in the program, however many mounts; unrolled, each copy was duplicated into its consumers)."""
+    return jax.lax.scan(lambda p, m: (move(p, m), None), point, plate.mounts)[0]
+
+
 def _outside_mounts(plate, x, y):
     """Projection of points (x, y) (m) out of the mount discs onto their circles; no-op without mounts."""
     if plate.mounts is None:
         return x, y
-    for mx, my in plate.mounts:
-        dx, dy = x - mx, y - my
+
+    def move(point, mount):
+        x, y = point
+        dx, dy = x - mount[0], y - mount[1]
         d = jnp.sqrt(dx * dx + dy * dy)
         inside = d < plate.mount_radius
         scale = plate.mount_radius / jnp.where(d > 0, d, 1.0)
-        x = jnp.where(inside, mx + jnp.where(d > 0, dx * scale, plate.mount_radius), x)
-        y = jnp.where(inside, my + dy * scale, y)
-    return x, y
+        return (jnp.where(inside, mount[0] + jnp.where(d > 0, dx * scale, plate.mount_radius), x),
+                jnp.where(inside, mount[1] + dy * scale, y))
+
+    return _over_mounts(plate, (x, y), move)
 
 
 def near_mounts(plate, points) -> Array:
@@ -352,7 +364,9 @@ def find_plate_peak(
     (`plate_starts`: grid time and point indices and values).
     Each start is refined by Newton's method in (x, y, t) in a trust region of one grid cell (derivatives by
     central differences), steps that enter a mount disc projected onto its circle. The value's gradient is taken
-    at the maximiser (envelope theorem); on a mount's circle the point moves with the mount."""
+    at the maximiser (envelope theorem); on a mount's circle the point moves with the mount. The error estimate is
+    the larger of the last step's gain and the gain the quadratic model still expects within a cell of the point
+    returned (bounds and discs respected), relative to the value."""
     plate = modes.plate
     cell = jnp.stack([xi[1] - xi[0], eta[1] - eta[0], t[1] - t[0]])
     xi, eta = (v.ravel() for v in jnp.meshgrid(xi, eta, indexing="ij"))
@@ -399,15 +413,18 @@ def find_plate_peak(
         # Each pass evaluates the pending point, keeps it if it gains, and proposes the next from the best so
         # far: the start is the first pending point, so the program holds one copy of the evaluation.
         def step(carry, _):
-            z, f, g, H, _, radius, z_new = carry
+            z, f, g, H, _, _, radius, z_new = carry
             f_new, g_new, H_new = derivatives(z_new)
             better = f_new > f
             keep = lambda a, b: jax.tree_util.tree_map(lambda u, v: jnp.where(better, u, v), a, b)  # noqa: E731
             z, f_kept, g, H = keep((z_new, f_new, g_new, H_new), (z, f, g, H))
             gain = jnp.where(better & (f > -jnp.inf), f_new - f, 0.0)
             radius = jnp.where(better, radius, 0.5 * radius)
-            # Coordinates on a bound with the measure rising outwards stay there (a constrained maximum).
-            held = ((z <= lo) & (g < 0)) | ((z >= hi) & (g > 0))
+            # Coordinates on a bound with the measure rising outwards stay there (a constrained maximum). "On" to
+            # 1e-9 of a cell: a point projected out of a mount's disc comes back through metres and lands a few
+            # ulps inside an edge, where a free Newton step outwards, clipped, turns the other coordinates' steps
+            # off and the search stalls below the maximum (4e-6 on a screwed plate's edge).
+            held = ((z <= lo + _ON_BOUND) & (g < 0)) | ((z >= hi - _ON_BOUND) & (g > 0))
             g_free = jnp.where(held, 0.0, g)
             H_free = jnp.where(held[:, None] | held[None, :], -jnp.eye(3, dtype=H.dtype), H)
             # Newton along the Hessian's concave directions, half a cell uphill along the others (none where the
@@ -416,16 +433,20 @@ def find_plate_peak(
             gv = V.T @ g_free
             uphill = 0.5 * jnp.sign(gv) * (jnp.abs(gv) > 1e-9 * jnp.abs(f_kept))
             u = V @ jnp.where(w < 0, -gv / jnp.where(w < 0, w, -1.0), uphill)
+            # What the quadratic model still expects from a step of at most a cell (whatever the trust radius, which
+            # shrinks where steps fail): the search's error estimate, which a stalled search cannot hide.
+            u_cell = project(z + u / jnp.maximum(1.0, jnp.max(jnp.abs(u)))) - z
+            expected = jnp.maximum(g @ u_cell + 0.5 * u_cell @ H @ u_cell, 0.0)
             u = u * jnp.minimum(1.0, radius / jnp.maximum(jnp.max(jnp.abs(u)), 1e-30))
-            return (z, f_kept, g, H, gain, radius, project(z + u)), None
+            return (z, f_kept, g, H, gain, expected, radius, project(z + u)), None
 
         zero = jnp.zeros_like(f_grid)
-        carry = (z0, jnp.full_like(f_grid, -jnp.inf), jnp.zeros_like(z0), jnp.zeros((3, 3), z0.dtype), zero,
+        carry = (z0, jnp.full_like(f_grid, -jnp.inf), jnp.zeros_like(z0), jnp.zeros((3, 3), z0.dtype), zero, zero,
                  jnp.ones_like(f_grid), z0)
         carry, _ = jax.lax.scan(step, carry, None, length=(newton_steps if refine else 0) + 1)
-        z, f, _, _, gain = carry[:5]
+        z, f, _, _, gain, expected = carry[:6]
         grid_wins = ~(f >= f_grid)
-        return jnp.where(grid_wins, z0, z), jnp.maximum(f, f_grid), gain
+        return jnp.where(grid_wins, z0, z), jnp.maximum(f, f_grid), jnp.maximum(gain, expected)
 
     z0 = jnp.stack([xi[where_p], eta[where_p], t[idx]], axis=-1) / cell
     z_all, f_all, gain_all = jax.vmap(refine_one)(jax.lax.stop_gradient(z0), jax.lax.stop_gradient(f_start))
@@ -435,14 +456,16 @@ def find_plate_peak(
     px, py = p_best[0] * plate.length, p_best[1] * plate.width
     if plate.mounts is not None:
         # On a mount's circle the constrained maximiser moves with the mount (and with the radius).
-        for mx, my in plate.mounts:
-            dx, dy = jax.lax.stop_gradient((px - mx, py - my))
-            d = jnp.hypot(dx, dy)
+        def move(point, mount):
+            px, py = point
+            dx, dy = jax.lax.stop_gradient((px - mount[0], py - mount[1]))
+            d = jnp.sqrt(dx * dx + dy * dy)
             on = d <= jax.lax.stop_gradient(plate.mount_radius) * (1 + 1e-6)
             d_safe = jnp.where(d > 0, d, 1.0)
-            px = jnp.where(on, mx + plate.mount_radius * dx / d_safe, px)
-            py = jnp.where(on, my + plate.mount_radius * dy / d_safe, py)
-        px, py = clip_to_plate(plate, px, py)  # a disc across an edge (flagged) would put the point off the plate
+            return (jnp.where(on, mount[0] + plate.mount_radius * dx / d_safe, px),
+                    jnp.where(on, mount[1] + plate.mount_radius * dy / d_safe, py))
+
+        px, py = clip_to_plate(plate, *_over_mounts(plate, (px, py), move))  # a disc across an edge (flagged) would put the point off the plate
     t_star = jnp.where(p_best[2] >= window * (1.0 - 1e-9), window, p_best[2])
     q = modal(t_star)
     f = measure(plate, *(jnp.sum(coeffs * q * s) for s in modes.shapes(px, py)))

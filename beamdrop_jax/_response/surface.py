@@ -5,6 +5,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._board.base import Gauges, Peak
 from .._board.plate import surface_strain, surface_stress
@@ -81,26 +82,27 @@ def _plate_searches(S: _Setup, plate, numerics: Numerics, modes, kinds: tuple[st
 def _gauges(plate, S: _Setup, modes, mask, points) -> Gauges:
     points = jnp.asarray(points, dtype=float_dtype())
     gx, gy = points[:, 0], points[:, 1]
-    _, kxx, kyy, kxy = (field_on_grid(mask, S.Q, v) for v in modes.shapes(gx, gy))
+    # The shapes at the gauges once: every reading below is a modal solution dotted with them.
+    _, *curvatures = modes.shapes(gx, gy)
+    kxx, kyy, kxy = (field_on_grid(mask, S.Q, v) for v in curvatures)
     z = plate.thickness / 2
     strain = surface_strain(plate, kxx, kyy, kxy)
     # Peak time of each gauge: grid maximum, then Newton in t on the modal solution.
     j = strain.argmax(axis=1)
 
-    def reading(x, y, t):
+    def reading(shapes, t):
         q = S.modal(t) * mask
-        _, a, b, c = (jnp.sum(q * v) for v in modes.shapes(x, y))
-        return surface_strain(plate, a, b, c)
+        return surface_strain(plate, *(jnp.sum(q * v) for v in shapes))
 
     dt = S.t[1] - S.t[0]
     offsets = jnp.array([-1.0, 0.0, 1.0]) * (dt / 16)
 
-    def refine(x, y, t0):
+    def refine(shapes, t0):
         # Newton in t on derivatives from a three-point stencil (one batched evaluation, a small program); each
         # pass evaluates the pending time and keeps it if it gains.
         def step(carry, _):
             t, f, g, h, t_new = carry
-            lo, mid, hi = jax.vmap(lambda s: reading(x, y, s))(t_new + offsets)
+            lo, mid, hi = jax.vmap(lambda s: reading(shapes, s))(t_new + offsets)
             g_new, h_new = (hi - lo) / (2 * offsets[2]), (hi - 2 * mid + lo) / offsets[2] ** 2
             better = mid > f
             t, f, g, h = (jnp.where(better, a, b) for a, b in zip((t_new, mid, g_new, h_new), (t, f, g, h)))
@@ -110,8 +112,8 @@ def _gauges(plate, S: _Setup, modes, mask, points) -> Gauges:
         start = (t0, jnp.full_like(t0, -jnp.inf), jnp.zeros_like(t0), jnp.zeros_like(t0), t0)
         return jax.lax.scan(step, start, None, length=5)[0][0]
 
-    t_peak = jax.lax.stop_gradient(jax.vmap(refine)(gx, gy, S.t[j]))
-    peak = jnp.maximum(jax.vmap(reading)(gx, gy, t_peak), strain[jnp.arange(gx.shape[0]), j])
+    t_peak = jax.lax.stop_gradient(jax.vmap(refine)(curvatures, S.t[j]))
+    peak = jnp.maximum(jax.vmap(reading)(curvatures, t_peak), strain[jnp.arange(gx.shape[0]), j])
     return Gauges(gx, gy, S.t, -z * kxx, -z * kyy, -2 * z * kxy, strain, peak, t_peak)
 
 
@@ -189,17 +191,24 @@ def _readings(plate, modal, modes, mask, read: Gauges):
 
 def _exact_response(plate, motion, modes):
     """The exact response to `motion`'s half-sine pulses of every one of `modes` that is the plate's own (the
-    directions its mounts hold are left out): a function of (measure, x, y, t, n) giving the measure (`surface_stress`
-    or `surface_strain`) at (x, y) and t from the lowest n modes (None: all)."""
+    directions its mounts hold are left out): a function of (strain, x, y, t, counts) giving, for each n of `counts`
+    (None: all), the measure at the points (x, y) and times t (arrays (P,)) from the lowest n modes: the largest
+    principal surface strain where `strain` (a bool per point) holds, else the stress. One evaluation of the shapes
+    and of the modal solution for all the points and counts (each evaluation site is a copy in the program)."""
     free = (jnp.arange(modes.omega2.shape[0]) < modes.n_free).astype(float_dtype())
     jumps, times, duration = motion.pulses()
     beta = jax.vmap(lambda j: modes.participation() @ j)(jumps) * free
     modal = ClosedFormModes(modes.frequencies(), plate.damping_ratio, duration, beta, times)
 
-    def value(measure, x, y, t, n=None):
-        q = modal(t) if n is None else modal(t) * (jnp.arange(free.shape[0]) < n)
-        _, a, b, c = (v @ q for v in modes.shapes(x, y))
-        return measure(plate, a, b, c)
+    def value(strain, x, y, t, counts):
+        q = jax.vmap(modal)(t)
+        shapes = modes.shapes(x, y)[1:]
+        out = []
+        for n in counts:
+            kept = q if n is None else q * (jnp.arange(free.shape[0]) < n)
+            a, b, c = (jnp.sum(kept * v, axis=-1) for v in shapes)
+            out.append(jnp.where(strain, surface_strain(plate, a, b, c), surface_stress(plate, a, b, c)))
+        return out
 
     return value
 
@@ -218,11 +227,12 @@ def _exact_errors(plate, motion, full, used: int, stress, read, tiny):
     finer = plate.refined()
     here, there = _exact_response(plate, motion, full), _exact_response(finer, motion, finer.modes(
         finer.basis[0] * finer.basis[1]))
-    points = [(surface_stress, stress.x, stress.y, stress.t)]
+    points = [stress.x[None], stress.y[None], stress.t[None]]
     if read is not None:
-        points += [(surface_strain, x, y, t) for x, y, t in zip(read.x, read.y, read.peak_time)]
-    answer, whole, finer_whole = (jnp.stack([f(*p, **kw) for p in points]) for f, kw in (
-        (here, dict(n=used)), (here, {}), (there, {})))
+        points = [jnp.concatenate([a, b]) for a, b in zip(points, (read.x, read.y, read.peak_time))]
+    strain = np.arange(points[0].shape[0]) > 0  # the peak's stress, then the gauges' strains
+    answer, whole = here(strain, *points, (used, None))
+    (finer_whole,) = there(strain, *points, (None,))
     scale = jnp.maximum(answer, tiny)
     modes = jnp.abs(whole - answer) / scale
     basis = _richardson(plate, finer) * jnp.max(jnp.abs(finer_whole - whole) / scale)
