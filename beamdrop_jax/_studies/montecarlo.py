@@ -20,8 +20,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Bool, Float, Int
 from tqdm import tqdm
 
-from .._common.checks import float_dtype
-from .._common.checks import Flag
+from .._common.checks import Flag, float_dtype, is_concrete
 from .._scene.containers import Scene, check_scene
 from .._response.numerics import Numerics
 from .._response.objectives import _scene_peaks
@@ -440,7 +439,7 @@ def _landings(scene, samples, axes, outputs, numerics, progress, max_landings):
     # The table where it needs fewer nodes than the band has drops (a choice by the drops alone, so that a run's
     # answer does not depend on what earlier runs kept); kept nodes are not solved again.
     use_table = nodes is not None and nodes.size < band.size
-    solves = _missing_nodes(key, nodes).size if use_table else band.size
+    solves = (np.unique(_representatives(scene, _missing_nodes(key, nodes))).size if use_table else band.size)
     if solves > max_landings:
         raise ValueError(
             f"{band.size} of the {n} drops ({100 * band.size / n:.2g} %) land nearly flat, where corners strike "
@@ -589,11 +588,34 @@ def orientation_table(scene: Scene, nodes=None, progress: bool = False) -> Orien
     (`simulate`'s, default numerics but `TABLE_NUMERICS`' tolerance) at orientations k `ORIENTATION_STEP` for k in
     `nodes` (default: every node whose drop, or a neighbour's, lands nearly flat; 404 on the default scene). `montecarlo` uses it when
     only the orientation varies and the band holds more drops than the table has nodes: within 1 % of each drop's
-    own solve (tests/test_montecarlo.py)."""
+    own solve (tests/test_montecarlo.py). A scene whose drops at theta and -theta are mirror images (`_mirrored`)
+    solves one node of each such pair."""
     nodes = _orientation_nodes(scene) if nodes is None else np.asarray(nodes, dtype=int)
-    samples = eqx.tree_at(lambda s: s.drop.orientation, scene, jnp.asarray(nodes * ORIENTATION_STEP))
-    values = solve_landings(samples, sample_axes(samples, scene), np.arange(nodes.size), progress, TABLE_NUMERICS)
-    return OrientationTable(nodes, tuple(values))
+    solve, of_node = np.unique(_representatives(scene, nodes), return_inverse=True)
+    samples = eqx.tree_at(lambda s: s.drop.orientation, scene, jnp.asarray(solve * ORIENTATION_STEP))
+    values = solve_landings(samples, sample_axes(samples, scene), np.arange(solve.size), progress, TABLE_NUMERICS)
+    return OrientationTable(nodes, tuple(np.asarray(v)[of_node] for v in values))
+
+
+def _mirrored(scene: Scene) -> bool:
+    """Whether a concrete scene's drop at orientation -theta is the mirror image of its drop at theta (the mirror
+    the housing's plane through G normal to its first axis): a board that maps onto itself under x -> L - x
+    (`mirror_symmetric`), centred on that plane and level, and a drop without spin or horizontal motion (a box's:
+    untilted, and nothing out of the plane either). Peaks are then equal (the landing's solver, corners taken in
+    another order, agrees to its tolerance)."""
+    if not is_concrete(scene):
+        return False
+    d, p = scene.drop, scene.placement
+    still = ("spin", "horizontal_speed") + (("tilt", "side_speed", "spin_x", "spin_y") if scene.housing.is_box else ())
+    return (all(float(getattr(d, name)) == 0.0 for name in still) and float(p.centre[0]) == 0.0
+            and float(p.angle) == 0.0 and scene.board.mirror_symmetric())
+
+
+def _representatives(scene: Scene, nodes) -> np.ndarray:
+    """The node each of `nodes` is solved as: itself, or for a `_mirrored` scene the smaller of it and its mirror
+    image (orientation -k `ORIENTATION_STEP`)."""
+    nodes = np.asarray(nodes, dtype=int)
+    return np.minimum(nodes, (-nodes) % _node_count()) if _mirrored(scene) else nodes
 
 
 TABLE_NUMERICS = Numerics(landing_steps=FIRST_LANDING_STEPS, landing_tolerance=1e-8)
