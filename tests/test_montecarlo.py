@@ -394,16 +394,17 @@ def test_near_flat_band_reads_a_table_over_orientation(monkeypatch):
         bd.montecarlo(scene, 64, key, heights, progress=False, max_landings=10)
 
 
-def test_a_mirror_symmetric_scene_solves_one_node_of_each_mirror_pair(monkeypatch):
-    """A board that maps onto itself under x -> L - x, centred and level, dropped without spin or horizontal
-    speed: the drop at -theta is the mirror image of the drop at theta, so the orientation table solves one node of
-    each pair (203 of the default scene's 404). Reference: both nodes of each pair solved directly (the landing
-    then takes the corners in the other order): within 1e-8 (1.3e-9 measured) on three faces."""
+def test_mirror_image_drops_are_solved_once_in_the_orientation_table(monkeypatch):
+    """A board centred in the housing, level, that maps onto itself under x -> L - x, dropped without spin or
+    horizontal speed: the drops at theta, -theta, pi - theta and pi + theta are mirror images of each other (mirrors
+    in the vertical plane, the housing flipped over an axis), so the orientation table solves one of each four
+    nodes (101 of the default scene's 404). Reference: every node solved directly (the landing then takes the
+    corners in other orders): within 1e-8 (1.3e-9 measured) near three faces."""
     from beamdrop_jax._studies import montecarlo as mc
 
     scene, n = bd.Scene.default(), mc._node_count()
-    pairs = np.array([10, 1805, 3612])  # 0.5 deg from flat on the bottom, 0.25 deg from the side, 0.6 deg from the top
-    nodes = np.concatenate([pairs, (-pairs) % n])
+    ks = np.array([10, 1805])  # 0.5 deg from flat on the bottom, 0.25 deg from a side
+    nodes = np.concatenate([ks, (-ks) % n, (n // 2 - ks) % n, (n // 2 + ks) % n])
     solved, solve = [], mc.solve_landings
 
     def spy(samples, axes, idx, *args, **kwargs):
@@ -412,25 +413,30 @@ def test_a_mirror_symmetric_scene_solves_one_node_of_each_mirror_pair(monkeypatc
 
     monkeypatch.setattr(mc, "solve_landings", spy)
     table = mc.orientation_table(scene, nodes)
-    np.testing.assert_allclose(solved[0], np.sort(np.minimum(pairs, (-pairs) % n)) * mc.ORIENTATION_STEP)  # 3 of 6
+    np.testing.assert_allclose(solved[0], np.array([10, 1795]) * mc.ORIENTATION_STEP)  # 2 of 8
     samples = eqx.tree_at(lambda s: s.drop.orientation, scene, jnp.asarray(nodes * mc.ORIENTATION_STEP))
     direct = solve(samples, mc.sample_axes(samples, scene), np.arange(nodes.size), False, mc.TABLE_NUMERICS)
     for found, expected in zip(table.values[:3], direct[:3]):
         np.testing.assert_allclose(found, expected, rtol=1e-8)
-    assert not np.any(direct[3]) and np.unique(mc._representatives(scene, mc._orientation_nodes(scene))).size < 250
-    # Off the axis, tilted, spinning, moving sideways or with unlike ends, a drop has no mirror image in the table.
-    board = eqx.tree_at(lambda s: s.board, scene, bd.Board(ends="clamped-pinned"))
-    others = [scene.replace(**{"placement.centre": jnp.array([1e-3, 0.0])}), scene.replace(**{"placement.angle": 0.01}),
-              scene.replace(**{"drop.spin": 1.0}), scene.replace(**{"drop.horizontal_speed": 0.1}), board]
-    assert mc._mirrored(scene) and not any(mc._mirrored(other) for other in others)
+    assert not np.any(direct[3])
+    counts = [np.unique(mc._representatives(s, mc._orientation_nodes(scene))).size for s in (
+        scene, scene.replace(**{"placement.centre": jnp.array([0.0, 5e-3])}))]
+    assert counts[0] <= 404 / 4 + 2 and counts[1] <= 404 / 2 + 2
+    # What breaks each mirror.
+    off = scene.replace(**{"placement.centre": jnp.array([1e-3, 1e-3])})
+    assert mc._mirrors(scene) == ("x", "y") and mc._mirrors(off) == ()
+    assert mc._mirrors(eqx.tree_at(lambda s: s.board, scene, bd.Board(ends="clamped-pinned"))) == ("y",)
+    assert mc._mirrors(scene.replace(**{"placement.centre": jnp.array([0.0, 1e-3])})) == ("x",)
+    for name, value in (("placement.angle", 0.01), ("drop.spin", 1.0), ("drop.horizontal_speed", 0.1)):
+        assert mc._mirrors(scene.replace(**{name: value})) == (), name
     # A box (the default scene 0.1 m deep), untilted and moving in the plane, likewise.
     box = scene.replace(**{"housing.depth": 0.1})
-    pair = np.array([10, n - 10])
-    samples = eqx.tree_at(lambda s: s.drop.orientation, box, jnp.asarray(pair * mc.ORIENTATION_STEP))
-    found = solve(samples, mc.sample_axes(samples, box), np.arange(2), False, mc.TABLE_NUMERICS)
-    np.testing.assert_allclose(np.stack(found[:3])[:, 0], np.stack(found[:3])[:, 1], rtol=1e-8)
-    assert mc._mirrored(box) and not any(mc._mirrored(box.replace(**{f"drop.{name}": 0.01}))
-                                         for name in ("tilt", "side_speed", "spin_x", "spin_y"))
+    quad = np.array([10, n - 10, n // 2 - 10, n // 2 + 10])
+    samples = eqx.tree_at(lambda s: s.drop.orientation, box, jnp.asarray(quad * mc.ORIENTATION_STEP))
+    found = np.stack(solve(samples, mc.sample_axes(samples, box), np.arange(4), False, mc.TABLE_NUMERICS)[:3])
+    np.testing.assert_allclose(found, np.repeat(found[:, :1], 4, axis=1), rtol=1e-8)
+    assert mc._mirrors(box) == ("x", "y") and not any(mc._mirrors(box.replace(**{f"drop.{name}": 0.01}))
+                                                     for name in ("tilt", "side_speed", "spin_x", "spin_y"))
 
 
 def test_landings_that_outgrow_the_first_step_limit_are_solved_again(monkeypatch):

@@ -588,8 +588,7 @@ def orientation_table(scene: Scene, nodes=None, progress: bool = False) -> Orien
     (`simulate`'s, default numerics but `TABLE_NUMERICS`' tolerance) at orientations k `ORIENTATION_STEP` for k in
     `nodes` (default: every node whose drop, or a neighbour's, lands nearly flat; 404 on the default scene). `montecarlo` uses it when
     only the orientation varies and the band holds more drops than the table has nodes: within 1 % of each drop's
-    own solve (tests/test_montecarlo.py). A scene whose drops at theta and -theta are mirror images (`_mirrored`)
-    solves one node of each such pair."""
+    own solve (tests/test_montecarlo.py). Of nodes whose drops are mirror images (`_mirrors`) one is solved."""
     nodes = _orientation_nodes(scene) if nodes is None else np.asarray(nodes, dtype=int)
     solve, of_node = np.unique(_representatives(scene, nodes), return_inverse=True)
     samples = eqx.tree_at(lambda s: s.drop.orientation, scene, jnp.asarray(solve * ORIENTATION_STEP))
@@ -597,25 +596,33 @@ def orientation_table(scene: Scene, nodes=None, progress: bool = False) -> Orien
     return OrientationTable(nodes, tuple(np.asarray(v)[of_node] for v in values))
 
 
-def _mirrored(scene: Scene) -> bool:
-    """Whether a concrete scene's drop at orientation -theta is the mirror image of its drop at theta (the mirror
-    the housing's plane through G normal to its first axis): a board that maps onto itself under x -> L - x
-    (`mirror_symmetric`), centred on that plane and level, and a drop without spin or horizontal motion (a box's:
-    untilted, and nothing out of the plane either). Peaks are then equal (the landing's solver, corners taken in
-    another order, agrees to its tolerance)."""
+def _mirrors(scene: Scene) -> tuple[str, ...]:
+    """The mirror images among a concrete scene's drops over orientation, each a mirror in the vertical plane of
+    the housing's first axis (gravity and the ground stay): `"x"`, the drop at -theta mirrors the drop at theta (a
+    board that maps onto itself under x -> L - x, `mirror_symmetric`, centred on the housing's second axis); `"y"`,
+    the drop at pi - theta mirrors it (the housing flipped over its first axis: a board centred on that axis). Both
+    need a level board and a drop without spin or horizontal motion (a box's: untilted, nothing out of the plane).
+    Mirror images have equal peaks (the landing's solver, corners taken in another order, agrees to its
+    tolerance)."""
     if not is_concrete(scene):
-        return False
+        return ()
     d, p = scene.drop, scene.placement
     still = ("spin", "horizontal_speed") + (("tilt", "side_speed", "spin_x", "spin_y") if scene.housing.is_box else ())
-    return (all(float(getattr(d, name)) == 0.0 for name in still) and float(p.centre[0]) == 0.0
-            and float(p.angle) == 0.0 and scene.board.mirror_symmetric())
+    if not all(float(getattr(d, name)) == 0.0 for name in still) or float(p.angle) != 0.0:
+        return ()
+    centre = np.asarray(p.centre, dtype=float)
+    return (("x",) if centre[0] == 0.0 and scene.board.mirror_symmetric() else ()) + (("y",) if centre[1] == 0.0 else ())
 
 
 def _representatives(scene: Scene, nodes) -> np.ndarray:
-    """The node each of `nodes` is solved as: itself, or for a `_mirrored` scene the smaller of it and its mirror
-    image (orientation -k `ORIENTATION_STEP`)."""
-    nodes = np.asarray(nodes, dtype=int)
-    return np.minimum(nodes, (-nodes) % _node_count()) if _mirrored(scene) else nodes
+    """The node each of `nodes` is solved as: the smallest of it and its mirror images (`_mirrors`; the node of
+    orientation -theta, pi - theta, pi + theta)."""
+    nodes, n = np.asarray(nodes, dtype=int), _node_count()
+    mirrors = _mirrors(scene)
+    images = [nodes] + ([(-nodes) % n] if "x" in mirrors else []) + ([(n // 2 - nodes) % n] if "y" in mirrors else [])
+    if len(images) == 3:
+        images.append((n // 2 + nodes) % n)
+    return np.min(images, axis=0)
 
 
 TABLE_NUMERICS = Numerics(landing_steps=FIRST_LANDING_STEPS, landing_tolerance=1e-8)
