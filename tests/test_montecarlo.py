@@ -425,7 +425,14 @@ def test_mirror_image_drops_are_solved_once_in_the_orientation_table(monkeypatch
     # What breaks each mirror.
     off = scene.replace(**{"placement.centre": jnp.array([1e-3, 1e-3])})
     assert mc._mirrors(scene) == ("x", "y") and mc._mirrors(off) == ()
-    assert mc._mirrors(eqx.tree_at(lambda s: s.board, scene, bd.Board(ends="clamped-pinned"))) == ("y",)
+    # Unlike ends keep the housing's flip (1.6e-11 measured at (4, 0) mm), not the mirror in x.
+    unlike = eqx.tree_at(lambda s: s.board, scene, bd.Board(ends="clamped-pinned"))
+    unlike = unlike.replace(**{"placement.centre": jnp.array([4e-3, 0.0])})
+    flip = np.array([10, n // 2 - 10])
+    samples = eqx.tree_at(lambda s: s.drop.orientation, unlike, jnp.asarray(flip * mc.ORIENTATION_STEP))
+    found = np.stack(solve(samples, mc.sample_axes(samples, unlike), np.arange(2), False, mc.TABLE_NUMERICS)[:3])
+    np.testing.assert_allclose(found[:, 0], found[:, 1], rtol=1e-8)
+    assert mc._mirrors(unlike) == ("y",)
     assert mc._mirrors(scene.replace(**{"placement.centre": jnp.array([0.0, 1e-3])})) == ("x",)
     for name, value in (("placement.angle", 0.01), ("drop.spin", 1.0), ("drop.horizontal_speed", 0.1)):
         assert mc._mirrors(scene.replace(**{name: value})) == (), name
