@@ -302,6 +302,17 @@ def test_placement_optimiser_on_a_plate_finds_what_a_grid_search_finds():
     # The plate's supported ends stay inside the housing.
     ends = np.asarray(bd.board_ends(res.placement, plate.length))
     assert np.all(np.abs(ends[:, 0]) <= 0.075 + 1e-12) and np.all(np.abs(ends[:, 1]) <= 0.0375 + 1e-12)
+    # Two starts in one compiled program with the objective traced (as the optimiser runs them), at a placement
+    # where the worst-case aggregate's gradient was 0 / 0 (jnp.max's count of entries equal to the maximum, zero
+    # where the program recomputed the values a rounding apart): NaN, on "mean" too, which killed starts.
+    drops = bd.drop_set(scene.replace(**{"contact.model": "rigid"}), orientations)  # strikes apart
+    U = jnp.asarray([[-0.19462866485084077, -0.801113636183468, 1.3459643833569925]] * 2)
+    both = jax.jit(lambda o, U: jax.vmap(jax.value_and_grad(bd.placement_objective(scene, drops, o, numerics=numerics)))(U))
+    for index in (0, 1):  # "mean", "max", as `placement_objective` takes them traced (`risk`)
+        values, grads = both(jnp.asarray(index), U)
+        value, grad = jax.value_and_grad(bd.placement_objective(scene, drops, ("mean", "max")[index], numerics=numerics))(U[0])
+        np.testing.assert_allclose(np.asarray(grads), np.stack([grad, grad]), rtol=1e-7)
+        np.testing.assert_allclose(np.asarray(values), float(value), rtol=1e-9)
 
 
 def test_smooth_peak_stress_on_a_screwed_plate_is_bounded_and_differentiable_in_the_mounts():

@@ -111,6 +111,9 @@ def _smooth(scene, numerics, temperature):
         stress = jnp.abs(field_on_grid(mask, S.Q, mode_shapes(board, S.x, S.k.shape[0], True)))
         stress = board.youngs_modulus * board.thickness / 2 * stress
     # The shift m cancels (it only keeps exp finite); the temperature scales with the peak, so it carries a gradient.
-    m = jax.lax.stop_gradient(stress.max())
-    T = temperature * stress.max()
+    # The largest by a gather: jnp.max's gradient divides by the count of entries equal to it, 0 / 0 where the
+    # compiled gradient recomputes `stress` a rounding apart.
+    largest = stress.ravel()[jnp.argmax(stress)]
+    m = jax.lax.stop_gradient(largest)
+    T = temperature * largest
     return m + T * jnp.log(jnp.sum(jnp.exp((stress - m) / T)))
