@@ -24,6 +24,7 @@ from .._response.setup import _gauge_points
 from .._response.objectives import _scene_peaks, landing_batches, objective_landing
 from .._response.simulate import _simulate
 from .._common.compile import filter_jit
+from .._common.reductions import largest
 from .._common.report import plain
 
 
@@ -182,7 +183,7 @@ def optimize_mounts(
     def peak(s, landing):
         if points is None:
             return _scene_peaks(s, numerics, ("strain",), landing=landing)[0][0]
-        return jnp.max(_simulate(s, numerics, points, landing=landing).gauges.peak_strain)
+        return largest(_simulate(s, numerics, points, landing=landing).gauges.peak_strain)
 
     kinds = [landing_of(b) for b in batches]
 

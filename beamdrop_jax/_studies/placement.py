@@ -27,6 +27,7 @@ from jaxtyping import Array, Float
 from tqdm import tqdm
 
 from .._common.checks import float_dtype
+from .._common.reductions import largest
 from .._common.checks import Flag, combine
 from .._scene.containers import Placement, Scene, board_ends, check_scene, scene_flags
 from .._response.numerics import Numerics
@@ -158,12 +159,7 @@ def risk(values: Float[Array, " n"], objective="mean", alpha=0.9) -> Float[Array
         weights = jnp.clip(tail - jnp.arange(n), 0.0, 1.0)
         return jnp.sum(weights * jnp.sort(values)[::-1]) / tail
 
-    def worst():
-        # A gather, not jnp.max: max's gradient divides by the count of entries equal to the maximum, 0 / 0 where
-        # the compiled gradient recomputes `values` a rounding apart (seen on an optimiser's step under `vmap`).
-        return values[jnp.argmax(values)]
-
-    aggregates = {"mean": lambda: jnp.mean(values), "max": worst, "cvar": cvar}
+    aggregates = {"mean": lambda: jnp.mean(values), "max": lambda: largest(values), "cvar": cvar}
     if not isinstance(objective, str):  # only the chosen aggregate runs: the others' gradients cannot spoil it
         return jax.lax.switch(objective, [aggregates[name] for name in OBJECTIVES])
     if objective not in aggregates:

@@ -18,6 +18,7 @@ from .._board.beam import mode_shapes
 from .._board.search import field_on_grid, near_mounts
 from .._board.plate import surface_stress
 from .._common.compile import filter_jit
+from .._common.reductions import largest
 
 _PEAKS = {"stress": peak_stress, "strain": peak_strain, "deflection": peak_deflection}
 
@@ -111,9 +112,7 @@ def _smooth(scene, numerics, temperature):
         stress = jnp.abs(field_on_grid(mask, S.Q, mode_shapes(board, S.x, S.k.shape[0], True)))
         stress = board.youngs_modulus * board.thickness / 2 * stress
     # The shift m cancels (it only keeps exp finite); the temperature scales with the peak, so it carries a gradient.
-    # The largest by a gather: jnp.max's gradient divides by the count of entries equal to it, 0 / 0 where the
-    # compiled gradient recomputes `stress` a rounding apart.
-    largest = stress.ravel()[jnp.argmax(stress)]
-    m = jax.lax.stop_gradient(largest)
-    T = temperature * largest
+    top = largest(stress)
+    m = jax.lax.stop_gradient(top)
+    T = temperature * top
     return m + T * jnp.log(jnp.sum(jnp.exp((stress - m) / T)))
