@@ -65,8 +65,8 @@ sigma, dt/dsigma = 1 / (1 + Lambda / lambda0) (lambda0 = 20 / tau; the memory's 
 loading corners' (`memory_rate`), count in Lambda too), where no rate exceeds lambda0, with steps
 dsigma <= 2.5 / lambda0: stable for the solution and its derivatives, at about 2 / Lambda of physical time per step
 while sticking (some 1000 steps per tau at the default v_eps; a sliding or frictionless corner needs about 100). The
-physical time is the state's last entry; the dense solution is read at a physical time by Newton steps on the
-solver's step that holds it (`_state_at`). A smaller v_eps needs `max_steps` to match. The solve stops (a diffrax
+physical time is the state's last entry; the solve keeps the state at each step's end, and a physical time is read
+by Newton steps on the cubic Hermite interpolant of the step that holds it (`_state_at`). A smaller v_eps needs `max_steps` to match. The solve stops (a diffrax
 `Event`, at the end of the step where it holds) when the landing is over: no corner carries force and every corner
 still below the ground moves up. A corner above the ground that still approaches it then is a later impact
 (clattering), not part of this landing. The time bound `t_max` (default 10 tau) ends a landing that does not
@@ -355,8 +355,8 @@ class Landing(eqx.Module):
 
     def point_acceleration(self, t, q) -> Float[Array, "... 2"]:
         """Acceleration (ground frame, m/s^2, gravity included) at time(s) t of housing points at body coordinates
-        q = (q1, q2) from G: a_G + alpha z x r - w^2 r, r = R(theta(t)) q, from the dense solution's state and the
-        contact forces there. The result has shape t.shape + q.shape."""
+        q = (q1, q2) from G: a_G + alpha z x r - w^2 r, r = R(theta(t)) q, from the solution's state and the contact
+        forces there. The result has shape t.shape + q.shape."""
         q = jnp.asarray(q)
 
         def one(t, y):
@@ -400,42 +400,50 @@ class Landing(eqx.Module):
 
 def _state_at(solution, rhs, time_index: int, T, t_end, t, iterations: int = 3):
     """Nondimensional states at times t (s; a 1D array) of a landing solved in warped time, held at its ends outside
-    [0, t_end]: at the warped time sigma where the dense solution's physical time (state entry `time_index`, in
-    units of T; it grows monotonically with sigma) is t. The solver's step whose physical times hold t brackets
-    it; within a step the dense solution is one polynomial, on which safeguarded Newton steps (a bisection where a
-    step leaves the bracket) converge to round-off in 2 (measured; 3 are taken). 60 bisections over the whole solve
-    cost 6 times as much, and a bracket spanning several steps meets the warp's kinks, where Newton stalls."""
+    [0, t_end]: at the warped time sigma where the solution's physical time (state entry `time_index`, in units of
+    T; it grows monotonically with sigma) is t. The solve keeps the state at each step's end (`_solve`); within the
+    step that holds t the state is the cubic Hermite interpolant of its ends and their rates `rhs` (the order of
+    Tsit5's own dense output, from a ninth of the memory: the dense output's zeroed buffers took half of a landing's
+    solve). Safeguarded Newton steps on its time entry (a bisection where a step leaves the bracket) converge to
+    round-off in 2 (3 are taken). 60 bisections over the whole solve cost 6 times as much, and a bracket spanning
+    several steps meets the warp's kinks, where Newton stalls."""
     target = jnp.clip(t, 0.0, t_end) / T
-    dense = solution.interpolation
-
-    def polynomial(k):
-        """The dense solution on step k: a local interpolation (evaluate, derivative), without a search."""
-        return dense.interpolation_cls(t0=dense.ts[k], t1=dense.ts[k + 1],
-                                       **jax.tree_util.tree_map(lambda v: v[k], dense.infos))
+    sigma_k, y_k = solution.ts, solution.ys  # the start, then each step's end (inf after the last step)
+    times = y_k[:, time_index]
 
     def one(target):
-        starts, ends = dense.infos["y0"][:, time_index], dense.infos["y1"][:, time_index]  # inf after the last step
-        k = jnp.clip(jnp.searchsorted(starts, target, side="right") - 1, 0, dense.ts_size - 2)
-        local = polynomial(jax.lax.stop_gradient(k))
-        lo, hi = jax.lax.stop_gradient((dense.ts[k], dense.ts[k + 1]))
+        k = jax.lax.stop_gradient(jnp.clip(jnp.searchsorted(times[1:], target, side="left"), 0, times.shape[0] - 2))
+        s0, s1, y0, y1 = sigma_k[k], sigma_k[k + 1], y_k[k], y_k[k + 1]
+        h = s1 - s0
+        f0, f1 = rhs(s0, y0) * h, rhs(s1, y1) * h
+
+        def hermite(sigma, entry=slice(None)):
+            u = (sigma - s0) / h
+            a, b, c, d = y0[entry], f0[entry], y1[entry], f1[entry]
+            return (a + u * (b + u * ((3 * (c - a) - 2 * b - d) + u * (2 * (a - c) + b + d))))
+
+        def clock(sigma):
+            return hermite(sigma, time_index)
+
+        lo, hi = jax.lax.stop_gradient((s0, s1))
 
         def newton(_, c):
             lo, hi, sigma = c
-            f = local.evaluate(sigma)[time_index] - target
-            rate = local.derivative(sigma)[time_index]
+            f = clock(sigma) - target
+            rate = jax.jvp(clock, (sigma,), (jnp.ones_like(sigma),))[1]
             lo, hi = jnp.where(f <= 0.0, sigma, lo), jnp.where(f <= 0.0, hi, sigma)
             step = sigma - f / jnp.where(rate > 0.0, rate, 1.0)
             return lo, hi, jnp.where((step >= lo) & (step <= hi), step, 0.5 * (lo + hi))
 
-        f_lo, f_hi = jax.lax.stop_gradient((starts[k] - target, ends[k] - target))
+        f_lo, f_hi = jax.lax.stop_gradient((times[k] - target, times[k + 1] - target))
         start = jnp.clip(lo - f_lo * (hi - lo) / jnp.where(f_hi > f_lo, f_hi - f_lo, 1.0), lo, hi)
         sigma = jax.lax.stop_gradient(jax.lax.fori_loop(0, iterations, newton, (lo, hi, start))[2])
         # The search's sigma carries no derivative, but the physical time at a fixed sigma moves with the inputs:
         # one more Newton step on t(sigma) = target puts d(sigma)/d(input) = -(dt/d input) / (dt/d sigma) in
         # (implicit function theorem; its value change is below the search's resolution).
-        y = local.evaluate(sigma)
+        y = hermite(sigma)
         rate = rhs(sigma, y)[time_index]
-        return local.evaluate(jnp.clip(sigma - (y[time_index] - target) / rate, lo, hi))
+        return hermite(jnp.clip(sigma - (y[time_index] - target) / rate, lo, hi))
 
     return jax.vmap(one)(target)
 
@@ -543,10 +551,11 @@ def _solve(model, y_init, time_index: int, t_max, *, rtol, atol, max_steps, thro
         event = diffrax.Event(lambda sigma, y, args, **kw: model.separated(y) | (y[time_index] >= t_bound))
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(model.rhs), diffrax.Tsit5(), 0.0, _SIGMA_BOUND, None, y_init,
-        saveat=diffrax.SaveAt(t1=True, dense=True), stepsize_controller=controller, event=event,
+        saveat=diffrax.SaveAt(t0=True, steps=True), stepsize_controller=controller, event=event,
         max_steps=max_steps, throw=False,
     )
-    y_end = sol.ys[-1]
+    # The start, then each accepted step's end (inf after the last): `_state_at` interpolates between them.
+    y_end = sol.ys[jnp.minimum(sol.stats["num_accepted_steps"], max_steps)]
     failed = sol.result != diffrax.RESULTS.event_occurred
     return sol, y_end, failed, ~failed & model.separated(y_end)
 

@@ -178,9 +178,10 @@ FIRST_LANDING_STEPS = 8192
 """The step limit of a first solve of a concrete near-flat drop (`simulate`, `solve_landings`, Monte-Carlo's
 orientation table), solved again with `Numerics.landing_steps` where it is not enough: near-flat drops of the
 default beam took 1000 to 2300 steps, of the JESD22 plate 5500 to 10,900 (2 of its 416 table nodes more than
-8192), nearly plastic ones (restitution 0.012-0.017) of the beam up to 6100. The dense solution's buffer is
-allocated at the limit: with this one (against 16384) the default scene's drop at 0.5 deg took 25 against 46 ms,
-the JESD22 plate's 175 against 186 ms, to the same numbers (with 4096, which the plate outgrows: 260 ms)."""
+8192), nearly plastic ones (restitution 0.012-0.017) of the beam up to 6100. The solve's buffer of states is
+allocated at the limit: with this one (against 16384) an orientation table's node of the default beam took 7.7-8.3
+against 9.8-10.1 ms, to the same numbers; a single drop's time moved less than its noise (the default scene at
+0.5 deg 22-37 ms, the JESD22 plate 158-188 ms, with either)."""
 
 
 def _velocity(scene: Scene):
@@ -190,8 +191,8 @@ def _velocity(scene: Scene):
 
 def scene_landing(scene: Scene, window, max_steps: int = 16384, tolerance: float = 1e-10) -> Landing | BoxLanding:
     """The compliant landing of a drop, integrated from the first touch to `window` (s) through every strike: the
-    plane section's (`Landing`) or a box's (`BoxLanding`). `max_steps`: the solve's step limit (the dense
-    solution's buffer, whose size its cost follows; `FIRST_LANDING_STEPS`); beyond it the drop is flagged
+    plane section's (`Landing`) or a box's (`BoxLanding`). `max_steps`: the solve's step limit (the buffer of
+    the states it keeps at each step; `FIRST_LANDING_STEPS`); beyond it the drop is flagged
     `SOLVER_FAILED`. `tolerance`: the step controller's rtol and atol on the nondimensional state."""
     h, c, d = scene.housing, scene.contact, scene.drop
     nan = jnp.asarray(jnp.nan, dtype=jnp.result_type(float))

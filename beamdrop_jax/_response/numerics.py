@@ -49,8 +49,8 @@ class Numerics(eqx.Module):
       strikes, and the 3D rigid law takes its closed form (stick, or slide along the invariant direction: no
       diffrax solve; 15 times faster Monte-Carlo on a box). `montecarlo` sets it where its drops are from rest; a
       drop that is not gets NaN peaks and `Flag.SOLVER_FAILED`.
-    - `landing_steps`: the step limit of the compliant landing's solve (near-flat drops; `Contact.model`). Its
-      dense solution's buffer is this long, and allocating it is a third of a landing's cost: near-flat drops of
+    - `landing_steps`: the step limit of the compliant landing's solve (near-flat drops; `Contact.model`). The
+      solve keeps the state at each step in a buffer this long: near-flat drops of
       the embedded scenes took 1000 to 10,900 steps, a nearly plastic contact (restitution 0.02) 15,000.
       A landing that needs more is flagged `Flag.SOLVER_FAILED`; raise it then. `landing_tolerance`: its step
       controller's rtol and atol on the nondimensional state (tight: the gradients through the landing follow

@@ -208,7 +208,7 @@ def _raise_if_not_from_rest(scene: Scene, numerics: Numerics) -> None:
 
 def _compliant_eagerly(scene: Scene, numerics: Numerics, points) -> Response:
     """A concrete drop on the compliant landing's path: solved first with a step limit of `FIRST_LANDING_STEPS`
-    (a smaller dense buffer), again with `numerics.landing_steps` where that is not enough; the same numbers."""
+    (a smaller buffer), again with `numerics.landing_steps` where that is not enough; the same numbers."""
     first = dataclasses.replace(numerics, landing_steps=min(FIRST_LANDING_STEPS, numerics.landing_steps))
     response = _simulate_jit(scene, first, points, landing="compliant")
     if first.landing_steps < numerics.landing_steps and int(response.flags) & Flag.SOLVER_FAILED:

@@ -636,7 +636,7 @@ def solve_landings(samples, axes, idx, progress: bool = False,
                    first: Numerics = Numerics(landing_steps=FIRST_LANDING_STEPS)):
     """Peak stress, strain, deflection and flags of drops `idx` of a batch on the compliant landing's path
     (`simulate`'s, default numerics), `LANDING_BATCH` at a time: four arrays of len(idx). Each drop is solved first
-    with `first` (`simulate`'s first step limit, `FIRST_LANDING_STEPS`: a smaller dense buffer), and again with the
+    with `first` (`simulate`'s first step limit, `FIRST_LANDING_STEPS`: a smaller buffer), and again with the
     default `Numerics.landing_steps` where that is not enough: the same numbers as `simulate`'s."""
     idx = np.asarray(idx, dtype=int)
     out = _solve_batches(samples, axes, idx, first, progress)
