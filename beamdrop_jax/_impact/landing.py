@@ -403,8 +403,8 @@ def _state_at(solution, rhs, time_index: int, T, t_end, t, iterations: int = 3):
     [0, t_end]: at the warped time sigma where the solution's physical time (state entry `time_index`, in units of
     T; it grows monotonically with sigma) is t. The solve keeps the state at each step's end (`_solve`); within the
     step that holds t the state is the cubic Hermite interpolant of its ends and their rates `rhs` (the order of
-    Tsit5's own dense output, from a ninth of the memory: the dense output's zeroed buffers took half of a landing's
-    solve). Safeguarded Newton steps on its time entry (a bisection where a step leaves the bracket) converge to
+    Tsit5's own dense output, in a ninth of the memory: zeroing and filling the dense output's buffers would take
+    half of a landing's solve). Safeguarded Newton steps on its time entry (a bisection where a step leaves the bracket) converge to
     round-off in 2 (3 are taken). 60 bisections over the whole solve cost 6 times as much, and a bracket spanning
     several steps meets the warp's kinks, where Newton stalls."""
     target = jnp.clip(t, 0.0, t_end) / T
