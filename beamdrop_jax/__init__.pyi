@@ -1,7 +1,7 @@
 """The public names of beamdrop_jax. The package imports each private module on first use of one of its names
 (`lazy_loader` reads this file), so `import beamdrop_jax` costs little more than importing JAX."""
 
-from ._common.checks import Flag as Flag, GRAVITY as GRAVITY
+from ._common.checks import Flag as Flag, GRAVITY as GRAVITY, IMPULSE_DURATION as IMPULSE_DURATION
 from ._board.base import AbstractBoard as AbstractBoard, AbstractModal as AbstractModal
 from ._board.beam import Board as Board
 from ._scene.containers import (

@@ -78,6 +78,23 @@ def test_ideal_impulse_grows_with_modes():
     assert not bool(res.converged) and int(res.n_modes) == 16
 
 
+def test_a_pulse_too_short_for_the_board_to_tell_is_the_ideal_impulse():
+    """A contact no longer than `IMPULSE_DURATION` (1e-12 s) is the ideal impulse, eagerly and under `jit`, with
+    finite gradients (a 1e-292 s pulse's amplitude pi / (2 tau) overflowed: its peak was 0 and its gradients NaN);
+    a 1e-9 s pulse is a pulse, within (omega tau)^2 of the impulse."""
+    numerics = bd.Numerics(n_modes=6)
+    impulse = bd.Scene.default().replace(**{"contact.duration": 0.0})
+    value = jax.jit(lambda s: bd.peak_stress(s, numerics))
+    grad = jax.jit(jax.grad(lambda s: bd.peak_stress(s, numerics)))
+    reference = float(bd.peak_stress(impulse, numerics))
+    for tau in (1e-292, 1e-13, 1e-9):
+        scene = impulse.replace(**{"contact.duration": tau})
+        for peak in (bd.peak_stress(scene, numerics), value(scene)):
+            np.testing.assert_allclose(float(peak), reference, rtol=1e-7 if tau == 1e-9 else 1e-12)
+        leaves = jax.tree_util.tree_leaves(grad(scene))
+        assert all(np.all(np.isfinite(np.asarray(g))) for g in leaves), (tau, leaves)
+
+
 def test_vmap_simulate_equals_loop():
     batch = random_scenes(24, seed=3)
     numerics = bd.Numerics(n_modes=6)

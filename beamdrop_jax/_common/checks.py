@@ -196,6 +196,24 @@ GRAVITY = 9.80665
 
 DEG = math.pi / 180.0
 
+IMPULSE_DURATION = 1e-12
+"""A contact duration (s) at or below which the contact is an ideal impulse. A board's modes (below 1e6 rad/s)
+cannot tell such a pulse from an impulse (they differ by (omega tau)^2 < 1e-12), and the half-sine's amplitude
+pi / (2 tau), its rate and their derivatives (up to 1 / tau^3) would overflow for tinier ones, float32 included
+(a 1e-292 s pulse gave a peak of 0 and NaN gradients)."""
+
+
+def is_pulse(duration):
+    """Whether a contact of `duration` (s) is a half-sine pulse rather than an ideal impulse
+    (`IMPULSE_DURATION`)."""
+    return duration > IMPULSE_DURATION
+
+
+def pulse_duration(duration):
+    """`duration` where it is a pulse (`is_pulse`), else 1: a stand-in to divide by, so that the branch not taken
+    keeps finite gradients."""
+    return jnp.where(is_pulse(duration), duration, 1.0)
+
 
 def float_dtype():
     """The float dtype JAX uses now: float64 with x64 enabled, float32 otherwise (asks for no truncation)."""

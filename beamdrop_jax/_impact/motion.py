@@ -21,7 +21,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._common.checks import float_dtype
-from .._common.checks import GRAVITY, is_concrete, require
+from .._common.checks import GRAVITY, is_concrete, is_pulse, pulse_duration, require
 
 
 def _f(x):
@@ -71,13 +71,13 @@ class AbstractMotion(eqx.Module):
         """For the diffrax path: (initial modal velocities per unit of `modal_jumps` (a function of (dvA, dvB, dvR)),
         the acceleration function, the forcing's kinks to step onto, the largest step)."""
         pulse = self.as_half_sine()
-        is_pulse = pulse.duration > 0
-        v0 = jnp.where(is_pulse, 0.0, modal_jumps(pulse.first_jumps()))
+        pulsed = is_pulse(pulse.duration)
+        v0 = jnp.where(pulsed, 0.0, modal_jumps(pulse.first_jumps()))
         # The pulse's end is a kink in the forcing: step onto it exactly (DESIGN: declare it as a jump time).
-        jumps = jnp.where(is_pulse, pulse.duration, window)[None]
+        jumps = jnp.where(pulsed, pulse.duration, window)[None]
         # A pulse starts at zero force from rest: the initial step-size guess sees no motion and a low-order
         # solver's error estimate can step over the whole pulse (ImplicitEuler did, returning ~0). Cap the step.
-        dtmax = jnp.where(is_pulse, pulse.duration / 8, window)
+        dtmax = jnp.where(pulsed, pulse.duration / 8, window)
         return v0, pulse.acceleration, jumps, dtmax
 
 
@@ -120,7 +120,7 @@ class HalfSine(AbstractMotion):
     """Half-sine pulse of `duration` tau at both supports: a(t) = dv pi/(2 tau) sin(pi t / tau) on [0, tau].
 
     The velocity change of each support is `dvA`, `dvB`, and a plate's across its width the roll `dvR` (module
-    notes); `duration = 0` is the ideal impulse.
+    notes); `duration = 0` (or up to `IMPULSE_DURATION`) is the ideal impulse.
     """
 
     dvA: Float[Array, ""]
@@ -161,8 +161,8 @@ class HalfSine(AbstractMotion):
     def acceleration(self, t) -> Float[Array, "3"]:
         """(aA, aB, aR) at time t, m/s^2."""
         tau = self.duration
-        on = (t >= 0) & (t <= tau) & (tau > 0)
-        tau_safe = jnp.where(tau > 0, tau, 1.0)
+        on = (t >= 0) & (t <= tau) & is_pulse(tau)
+        tau_safe = pulse_duration(tau)
         g = jnp.where(on, math.pi / (2 * tau_safe) * jnp.sin(math.pi * t / tau_safe), 0.0)
         return self.first_jumps() * g
 

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
+from .._common.checks import is_pulse as _is_pulse, pulse_duration
 from .._common.trig import cexp, sincos
 from .pulses import free_phasor, pulse_phasors, unit_response, unit_response_jet
 
@@ -141,8 +142,8 @@ class _TrainJet(eqx.Module):
         Z_sin, Z_cos, lam, omega_d, Omega = pulse_phasors(s, m.omega, m.zeta, m.duration)
         E = cexp(lam * s)
         sin_s, cos_s = sincos(Omega * s)
-        is_pulse = m.duration > 0
-        amp = jnp.where(is_pulse, math.pi / (2.0 * jnp.where(is_pulse, m.duration, 1.0)), 0.0)
+        is_pulse = _is_pulse(m.duration)
+        amp = jnp.where(is_pulse, math.pi / (2.0 * pulse_duration(m.duration)), 0.0)
         sin_lag, cos_lag = self.sin_lag[i][:, None], self.cos_lag[i][:, None]
         running = ((jnp.arange(K) <= i) & (self.lag[i] + s < m.duration) & is_pulse)[:, None]  # (l, 1)
         W = self.C[i] * E + jnp.sum(jnp.where(running, self.D[i] * E + m.beta * (cos_lag * Z_sin + sin_lag * Z_cos),

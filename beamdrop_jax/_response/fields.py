@@ -8,7 +8,7 @@ from .._board.base import curvature_scale
 from .._board.beam import mode_shapes, wavenumbers
 from .._board.plate import surface_strain
 from .._board.search import field_on_grid
-from .._common.checks import Flag, Range, as_float, as_int, float_dtype, require
+from .._common.checks import Flag, Range, as_float, as_int, float_dtype, is_pulse, require
 from .._common.compile import filter_jit
 from .._scene.containers import Scene
 from .numerics import Numerics
@@ -91,8 +91,8 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
     not converged (an empty list when nothing needs saying)."""
     notes = []
     board, peak = scene.board, response.peak
-    if float(scene.contact.duration) == 0.0:
-        notes.append(f"ideal impulse (contact duration 0): the peak grows with the mode count and never converges "
+    if not is_pulse(float(scene.contact.duration)):
+        notes.append(f"ideal impulse (contact duration {float(scene.contact.duration):g} s): the peak grows with the mode count and never converges "
                      f"(stopped at {int(response.n_modes)} modes); give Contact.duration a physical value "
                      "(0.05-1 ms)")
     elif not bool(response.converged) and int(response.flags) == 0:

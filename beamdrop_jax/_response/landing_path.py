@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._common.checks import GRAVITY
+from .._common.checks import GRAVITY, is_pulse, pulse_duration
 from .._impact.clatter import next_contact
 from .._common.compile import filter_jit
 from .._impact.box import BoxImpact, box_vertices, lowest_vertex
@@ -34,7 +34,7 @@ from .._impact.kinematics import (HousingImpact, _in_ground, _support_jumps, box
                                   housing_impact, plane_drop)
 from .._impact.landing import Landing, _landing, housing_corners
 from .._impact.motion import HalfSine, LandingMotion
-from .._scene.containers import Scene, board_ends
+from .._scene.containers import Contact, Scene, board_ends
 from .._common.trig import sincos
 from .numerics import Numerics
 from .pulses import fundamental_period
@@ -81,11 +81,21 @@ def compliant_weight(scene: Scene, numerics: Numerics, hit: HousingImpact):
     slow = tau > fundamental_period(scene.board)
     if scene.housing.is_box:
         w = box_compliant_weight(scene, numerics, w)
-    return jnp.where((tau > 0) & ~slow, w, 0.0)
+    return jnp.where(is_pulse(tau) & ~slow, w, 0.0)
+
+
+def compliant_branch(scene: Scene, weight) -> Scene:
+    """The scene the compliant path runs on where both paths are traced and the weight picks (`"either"`): `scene`
+    where the compliant answer is taken (`weight` > 0), else the same drop with the default contact duration. The
+    answer is dropped there, but a duration the landing cannot integrate (an impulse, a 1e-292 s pulse) would make
+    its gradient NaN, and NaN times the 0 that the pick gives it is NaN (jax-md's `safe_mask`)."""
+    return eqx.tree_at(lambda s: s.contact.duration, scene,
+                       jnp.where(weight > 0, scene.contact.duration, Contact().duration))
 
 
 def _smoothstep(t2, tau):
-    u = jnp.clip(((1.0 + BLEND) * tau - t2) / (BLEND * jnp.where(tau > 0, tau, 1.0)), 0.0, 1.0)
+    # A contact no longer than `IMPULSE_DURATION` counts as 0 long; the stand-in divisor keeps its gradient finite.
+    u = jnp.clip(((1.0 + BLEND) * jnp.where(is_pulse(tau), tau, 0.0) - t2) / (BLEND * pulse_duration(tau)), 0.0, 1.0)
     return u * u * (3.0 - 2.0 * u)
 
 

@@ -15,7 +15,7 @@ from .._board.plate_checks import plate_grid_deflection, response_flags
 from .line import _membrane, _search
 from .numerics import Numerics
 from .setup import _setup
-from .landing_path import compliant_weight
+from .landing_path import compliant_branch, compliant_weight
 from .simulate import _raise_eagerly, drop_motion, landing_drive
 from .surface import _plate_searches, plate_numerics
 
@@ -32,9 +32,9 @@ def _scene_peaks(scene: Scene, numerics: Numerics, quantities: tuple[str, ...], 
     the drop's `(motion, impact flags)` from `drop_motion` when computed already. `landing` (static): the path of
     `landing_drive`, or `"either"`: both, the answer picked by the compliant landing's weight."""
     if landing == "either":
-        rigid, compliant = (_scene_peaks(scene, numerics, quantities, grid_deflection, landing=kind)
-                            for kind in ("rigid", "compliant"))
         weight = compliant_weight(scene, numerics, drop_motion(scene, numerics)[2])
+        rigid, compliant = (_scene_peaks(drop, numerics, quantities, grid_deflection, landing=kind)
+                            for drop, kind in ((scene, "rigid"), (compliant_branch(scene, weight), "compliant")))
         return jax.tree_util.tree_map(lambda a, b: jnp.where(weight > 0, a, b), compliant, rigid)
     board = scene.board
     if motion_and_flags is None:

@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 
 from .._board.base import natural_frequencies
-from .._common.checks import float_dtype
+from .._common.checks import float_dtype, is_pulse as _is_pulse, pulse_duration
 from .._board.beam import Board
 
 from .._common.trig import cexp, sincos
@@ -45,8 +45,8 @@ def _response_phasor(t, omega, zeta, duration):
     omega_d = omega * jnp.sqrt(1.0 - zeta**2)
     lam = jax.lax.complex(-zeta * omega, omega_d)
 
-    is_pulse = tau > 0
-    tau_s = jnp.where(is_pulse, tau, 1.0)
+    is_pulse = _is_pulse(tau)
+    tau_s = pulse_duration(tau)
     Omega = math.pi / tau_s
     T = jnp.where(is_pulse, jnp.minimum(t_pos, tau_s), 0.0)
     e_rest = cexp(lam * (t_pos - T))  # |.| <= 1: no overflow for heavy damping; e^{lam t} for the impulse
@@ -64,7 +64,7 @@ def _response_phasor(t, omega, zeta, duration):
 
 def unit_response(t, omega, zeta, duration):
     """Modal displacement at time t (s) for a unit modal velocity change delivered as a half-sine of `duration`
-    (s) starting at t = 0, or as an ideal impulse when `duration` = 0. Shapes broadcast over modes.
+    (s) starting at t = 0, or as an ideal impulse when `duration` = 0 (or below `IMPULSE_DURATION`). Shapes broadcast over modes.
 
     Impulse: e^{-zeta w t} sin(w_d t) / w_d. Half-sine: its convolution with pi/(2 tau) sin(pi s / tau) on
     [0, tau], evaluated in complex exponentials with no division by (w^2 - (pi/tau)^2), so exact resonance

@@ -14,13 +14,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._board.base import AbstractBoard
-from .._common.checks import Flag, combine, flag_if, is_concrete, raise_if_flagged
+from .._common.checks import Flag, combine, flag_if, is_concrete, is_pulse, raise_if_flagged
 from .._common.compile import filter_jit
 from .._impact.clatter import MAX_ADVANCES, Ending, Impacts, impact_sequence
 from .._impact.kinematics import housing_impact, plane_drop
 from .._impact.motion import AbstractMotion, PulseTrain
 from .._scene.containers import Scene, _largest, check_scene, require_single, scene_flags
-from .landing_path import FIRST_LANDING_STEPS, compliant_weight, first_jumps, landing_motion
+from .landing_path import FIRST_LANDING_STEPS, compliant_branch, compliant_weight, first_jumps, landing_motion
 from .line import _respond_line
 from .numerics import Numerics
 from .results import Response
@@ -82,7 +82,7 @@ def _drop_motion(scene: Scene, numerics: Numerics):
         if scene.contact.model != "rigid" and numerics.max_impacts == 1:
             # An edge struck unequally (motion out of the plane at tilt 0) is the edge's as one contact or the
             # compliant landing's (`edge_weight`), given a contact duration.
-            box_flags = jnp.where(scene.contact.duration > 0, box_flags & ~Flag.FLAT_LANDING_WITH_MOTION, box_flags)
+            box_flags = jnp.where(is_pulse(scene.contact.duration), box_flags & ~Flag.FLAT_LANDING_WITH_MOTION, box_flags)
         flags = combine(flags, jnp.where(out, box_flags, 0), flag_if(out & (numerics.max_impacts > 1),
                                                                      Flag.OUT_OF_PLANE))
     if numerics.max_impacts == 1:
@@ -110,14 +110,16 @@ def landing_drive(scene: Scene, numerics: Numerics, landing: str = "rigid"):
 def _simulate(scene: Scene, numerics: Numerics, gauges=None, landing: str = "rigid") -> Response:
     """One drop. `landing` (static): `"rigid"` or `"compliant"` (`landing_drive`), or `"either"`: both, the
     answer picked by the compliant landing's weight (traced scenes)."""
-    kinds = ("rigid", "compliant") if landing == "either" else (landing,)
-    responses = []
-    for kind in kinds:
-        motion, used, impacts, hit, flags, weight, box = landing_drive(scene, numerics, kind)
-        responses.append(_respond(scene.board, motion, used, combine(scene_flags(scene), flags), gauges))
-    response = responses[-1]
+    def respond(drop, kind):
+        motion, used, impacts, hit, flags, weight, box = landing_drive(drop, numerics, kind)
+        response = _respond(scene.board, motion, used, combine(scene_flags(scene), flags), gauges)
+        return response, (impacts, hit, weight, box)
+
+    response, (impacts, hit, weight, box) = respond(scene, "rigid" if landing == "either" else landing)
     if landing == "either":
-        response = jax.tree_util.tree_map(lambda a, b: jnp.where(weight > 0, a, b), responses[1], responses[0])
+        weight = compliant_weight(scene, numerics, hit)
+        compliant, _ = respond(compliant_branch(scene, weight), "compliant")
+        response = jax.tree_util.tree_map(lambda a, b: jnp.where(weight > 0, a, b), compliant, response)
     elif landing == "rigid" and scene.contact.model == "auto" and numerics.max_impacts == 1:
         # The rigid law's answer, and whether the drop wants the landing instead (`simulate` then runs that).
         weight = compliant_weight(scene, numerics, hit)

@@ -189,7 +189,7 @@ CONTACT_MODELS = ("auto", "rigid", "compliant")
 
 class Contact(eqx.Module):
     """Ground contact: Coulomb `friction` mu >= 0, `restitution` e in [0, 1], how long a corner's contact lasts,
-    `duration` (s; 0 means an ideal impulse), and the landing `model`:
+    `duration` (s; 0, or up to `IMPULSE_DURATION` = 1e-12 s, means an ideal impulse), and the landing `model`:
 
     - `"rigid"`: Routh's law at the lowest corner, one corner at a time (exact where a corner strikes alone);
     - `"compliant"`: every corner that reaches the ground carries a spring-dashpot and Coulomb friction, the

@@ -20,7 +20,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Bool, Float, Int
 from tqdm import tqdm
 
-from .._common.checks import Flag, float_dtype, is_concrete
+from .._common.checks import Flag, float_dtype, is_concrete, is_pulse
 from .._scene.containers import Scene, check_scene
 from .._response.numerics import Numerics
 from .._response.objectives import _scene_peaks
@@ -171,7 +171,7 @@ def montecarlo_numerics(scene: Scene, distribution: "DropDistribution | None" = 
     spec = None if distribution is None else distribution.duration
     if spec is not None:
         tau = spec[1] if spec[0] == "uniform" else spec[1] * math.exp(-3 * spec[2])
-    if tau <= 0:
+    if not is_pulse(tau):
         n = 16
     else:
         f_tau = np.asarray(natural_frequencies(scene.board, 64)) / (2 * math.pi) * tau

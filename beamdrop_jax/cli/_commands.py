@@ -136,7 +136,8 @@ def cmd_drop(args, output):
                    f"{math.degrees(float(scene.drop.orientation)):.1f} deg"
                    + (f", tilted {math.degrees(float(scene.drop.tilt)):.1f} deg, " if float(scene.drop.tilt) else ", ")
                    + (("compliant contact, " if float(res.landing_weight) > 0 else "half-sine contact, ")
-                      + f"{tau * 1e3:g} ms per corner strike" if tau > 0 else "ideal impulse (contact duration 0)")
+                      + f"{tau * 1e3:g} ms per corner strike" if tau > bd.IMPULSE_DURATION
+                      else f"ideal impulse (contact duration {tau:g} s)")
                    + board_text)
     if numerics.max_impacts > 1:
         imp = res.impacts
