@@ -99,6 +99,9 @@ def test_contact_model_is_checked_and_round_trips(tmp_path):
         bd.Contact(model="rigd")
     with pytest.raises(ValueError, match="Contact.duration = 0 s with Contact.model = 'compliant'"):
         bd.Contact(duration=0.0, model="compliant")
+    # A contact no longer than IMPULSE_DURATION is an impulse, not a landing (it ran out of steps, flagged wrongly).
+    with pytest.raises(ValueError, match=r"Contact.duration = 1e-300 s .*valid: duration > 1e-12 s"):
+        bd.Contact(duration=1e-300, model="compliant")
     scene = _at(bd.Scene(), 30.0, model="compliant")
     bd.save_scene(scene, tmp_path / "s.toml")
     assert bd.load_scene(tmp_path / "s.toml").contact.model == "compliant"

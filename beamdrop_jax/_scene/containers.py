@@ -20,8 +20,8 @@ from jaxtyping import Array, Float
 from .._board.beam import Board
 from .._common.fields import VECTOR_FIELDS, check_ranges, init_fields, positive, range_flags
 from .._common.compile import filter_jit
-from .._common.checks import (DEG, GRAVITY, Flag, Range, array_module, as_float, combine, flag_if, is_concrete,
-                               on_host, raise_if_flagged)
+from .._common.checks import (DEG, GRAVITY, IMPULSE_DURATION, Flag, Range, array_module, as_float, combine, flag_if,
+                               is_concrete, on_host, raise_if_flagged)
 
 # Angles beyond this many radians (about 1600 turns) are rejected: no drop needs them, and the sine and cosine of
 # larger arguments lose their argument reduction in the fast polynomial the response uses.
@@ -226,11 +226,12 @@ class Contact(eqx.Module):
 
     def __check_init__(self):
         check_ranges(self)
-        if self.model == "compliant" and is_concrete(self.duration) and np.any(np.asarray(self.duration) <= 0):
+        if (self.model == "compliant" and is_concrete(self.duration)
+                and np.any(np.asarray(self.duration) <= IMPULSE_DURATION)):
             raise ValueError(
                 f"Contact.duration = {float(np.min(self.duration)):g} s with Contact.model = {self.model!r}: the "
-                "compliant landing needs a duration > 0 (its springs' stiffness comes from it); valid: duration > 0, "
-                'or Contact(model="rigid") for an ideal impulse (duration 0)')
+                "compliant landing needs a pulse (its springs' stiffness comes from the duration); valid: duration > "
+                f'{IMPULSE_DURATION:g} s, or Contact(model="rigid") for an ideal impulse (duration 0)')
 
 
 SECTIONS = {"housing": Housing, "board": Board, "placement": Placement, "drop": Drop, "contact": Contact}
