@@ -502,7 +502,11 @@ def _interrupt(tmp_path, argv, marker, after_s=0.0, env=None):
     import threading
     import time
 
-    proc = subprocess.Popen([sys.executable, "-m", "beamdrop_jax.cli", *argv], stdout=subprocess.DEVNULL,
+    # As from a terminal: a test run started in the background (`pytest &` in a script) ignores SIGINT, and a
+    # child inherits that; the command rightly leaves an ignored SIGINT ignored.
+    as_from_a_terminal = ("import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                          "runpy.run_module('beamdrop_jax.cli', run_name='__main__', alter_sys=True)")
+    proc = subprocess.Popen([sys.executable, "-c", as_from_a_terminal, *argv], stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, cwd=tmp_path, env={**os.environ, **(env or {})})
     chunks = []
     reader = threading.Thread(target=lambda: chunks.extend(iter(lambda: os.read(proc.stderr.fileno(), 4096), b"")))
