@@ -609,8 +609,12 @@ def test_converged_means_the_gauges_agree_with_a_converged_run():
     gauges = ((0.066, 0.0), (0.03, 0.02))
     default = bd.board_response(plate, motion, gauges=gauges)
     assert not bool(default.converged) and float(default.error_estimate) > 1e-3
-    assert any("not converged" in n and ("Numerics.max_modes" in n or "Plate.basis" in n)
-               for n in bd.response_notes(scene, default))
+    # Both the modes (0.23 % at the centre) and the basis (1.4 %) are over the tolerance: one note names both
+    # fixes, so that raising one does not meet the other only then.
+    c = default.convergence
+    assert min(max(float(c.modes), float(c.gauges)), float(c.basis)) > 1e-3
+    (note,) = [n for n in bd.response_notes(scene, default) if n.startswith("not converged")]
+    assert "raise Plate.basis" in note and "raise Numerics.max_modes" in note, note
     # Point supports make the basis converge slowly: the centre moves 1.5e-4 from 20 to 24 functions each way and
     # 1.3e-4 from 24 to 28, and 20 x 20 says (truthfully) that it is not converged.
     enough = bd.Numerics(max_modes=48, frequency_growth=1)
