@@ -36,7 +36,7 @@ def sincos(x):
     (`_compile.quick_programs`) XLA's own `sin` and `cos`, which make a smaller program."""
     if is_quick():
         return jnp.sin(x), jnp.cos(x)
-    return _sincos(x)
+    return _sincos_cached(x)
 
 
 @jax.custom_jvp
@@ -60,6 +60,12 @@ def _sincos_jvp(primals, tangents):
     (x,), (dx,) = primals, tangents
     s, c = _sincos(x)
     return (s, c), (c * dx, -s * dx)
+
+
+# Traced once per argument shape and inlined: a drop's program calls it 30 to 40 times, and tracing its custom JVP
+# afresh each time took a tenth of the time to trace a drop (lowering all four of the bench's cold programs 4-7 %
+# faster).
+_sincos_cached = jax.jit(_sincos, inline=True)
 
 
 def cexp(z):
