@@ -8,9 +8,11 @@ of them.
 """
 
 import collections
+import concurrent.futures
 import dataclasses
 import hashlib
 import math
+import os
 
 import equinox as eqx
 import jax
@@ -652,14 +654,37 @@ def _solve_batches(samples, axes, idx, numerics: Numerics, progress: bool):
     out = [np.empty(idx.size, dtype) for dtype in (float_dtype(),) * 3 + (np.int32,)]
     leaves, treedef = jax.tree_util.tree_flatten(samples)
     batched = [a is not None for a in treedef.flatten_up_to(axes)]
-    for start in tqdm(range(0, idx.size, LANDING_BATCH), desc="near-flat landings", disable=not progress,
-                      leave=False):
+    x64 = jax.config.jax_enable_x64  # the caller's, which may be a thread's own (`jax.enable_x64(False)`)
+
+    def solve(start):
         part = idx[start:start + LANDING_BATCH]
         padded = np.concatenate([part, np.repeat(part[-1:], LANDING_BATCH - part.size)])  # one compiled shape
         chunk = treedef.unflatten([np.asarray(v)[padded] if b else v for v, b in zip(leaves, batched)])
-        for o, v in zip(out, _compliant_peaks(chunk, axes, numerics)):
-            o[start:start + part.size] = np.asarray(v)[:part.size]
+        with jax.enable_x64(x64):
+            for o, v in zip(out, _compliant_peaks(chunk, axes, numerics)):
+                o[start:start + part.size] = np.asarray(v)[:part.size]
+
+    starts = range(0, idx.size, LANDING_BATCH)
+    if not starts:
+        return out
+    with tqdm(total=len(starts), desc="near-flat landings", disable=not progress, leave=False) as bar:
+        solve(starts[0])  # compiles, once
+        bar.update(1)
+        # XLA on CPU runs one batch's solve (a loop of small steps) on one core, and JAX runs the calls of one
+        # thread one after another: batches solved from several threads keep the other cores busy (on 2 cores a
+        # table of 404 near-flat landings took 4.2 against 7.8 ms each).
+        pool = concurrent.futures.ThreadPoolExecutor(_landing_threads())
+        try:
+            for _ in pool.map(solve, starts[1:]):
+                bar.update(1)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)  # on Ctrl-C: the batches running finish, no others
     return out
+
+
+def _landing_threads() -> int:
+    """Threads solving near-flat landings at once: one per core, at most 4."""
+    return max(1, min(4, os.cpu_count() or 1))
 
 
 def landing_weights(scene: Scene, n: int, key, distribution: "DropDistribution | None" = None):
