@@ -290,8 +290,9 @@ def montecarlo(
 
     **Near-flat landings** (`Contact.model` "auto", the default): the drops whose strikes overlap
     (`compliant_weight` > 0; about 6 % of uniform orientations) take the compliant landing's path, `simulate`'s
-    (0.03 to 0.05 s a drop on 2 cores), and replace the fast path's peaks (`MonteCarloResult.landing_weight` says
-    which); "compliant" takes it for every drop, "rigid" for none. Where only the orientation of a plane section
+    (on 2 cores about 0.005 s a drop on a beam, 0.05 s on a plate, solved from a thread per core;
+    `LANDING_SECONDS`), and replace the fast path's peaks (`MonteCarloResult.landing_weight` says which);
+    "compliant" takes it for every drop, "rigid" for none. Where only the orientation of a plane section
     varies and the band's drops outnumber its nodes, an `orientation_table` (0.05 deg apart, within 5e-3 of each
     drop's solve; the last four scenes' stay in memory) gives them. Over `max_landings` solves is refused first.
 
@@ -416,9 +417,14 @@ def _from_rest(scene: Scene, samples: Scene) -> bool:
                                                  (d.spin, d.horizontal_speed, d.side_speed, d.spin_x, d.spin_y)))
 
 
-LANDING_SECONDS = 0.06
-"""Measured cost of a near-flat drop on the compliant path, s (2 cores, the default scene, `LANDING_BATCH` at a
-time)."""
+LANDING_SECONDS = (0.005, 0.05)
+"""Measured cost of a near-flat drop on the compliant path, s, on a beam and on a plate (2 cores, after compiling:
+5.3-5.5 ms over 110 drops of the default scene, 46-47 ms over 127-139 drops of `jesd22-board` with
+`Contact.model` "auto", heights uniform on [0.5, 1.5] m)."""
+
+
+def _minutes(seconds: float) -> str:
+    return f"{seconds:.2g} s" if seconds < 90 else f"{seconds / 60:.0f} min"
 
 
 def _landings(scene, samples, axes, outputs, numerics, progress, max_landings):
@@ -443,10 +449,11 @@ def _landings(scene, samples, axes, outputs, numerics, progress, max_landings):
     use_table = nodes is not None and nodes.size < band.size
     solves = (np.unique(_representatives(scene, _missing_nodes(key, nodes))).size if use_table else band.size)
     if solves > max_landings:
+        seconds = LANDING_SECONDS[bool(scene.board.SURFACE)]
         raise ValueError(
             f"{band.size} of the {n} drops ({100 * band.size / n:.2g} %) land nearly flat, where corners strike "
-            f"together; that takes {solves} solves on the compliant landing's path, about {LANDING_SECONDS:g} s "
-            f"each on 2 cores (about {solves * LANDING_SECONDS / 60:.0f} min here), more than max_landings = "
+            f"together; that takes {solves} solves on the compliant landing's path, about {seconds:g} s "
+            f"each on 2 cores (about {_minutes(solves * seconds)} here), more than max_landings = "
             f"{max_landings} allows. Valid: fewer drops, max_landings >= {solves} (--max-landings) to pay for "
             'them, or Contact(model="rigid") (--contact-model rigid: the first strike only, fast, but it misses '
             "the near-flat drops' peaks)")

@@ -192,13 +192,13 @@ def build_parser() -> argparse.ArgumentParser:
                 "and exceedance figures")
     p.add_argument("-n", type=_int_at_least(1), default=2000,
                    help="number of drops (default 2000). Near-flat drops (about 6 %% of uniform orientations) take "
-                        "the compliant landing's path, about 0.03 s each on a beam and 0.13 s on a plate (2 cores, after "
+                        "the compliant landing's path, about 0.005 s each on a beam and 0.05 s on a plate (2 cores, after "
                         "compiling; where only the orientation varies, a table over orientation serves them); with "
                         "--contact-model rigid every "
                         "drop takes the first strike's fast path (millions of drops/s), which misses their peaks")
     p.add_argument("--max-landings", type=_int_at_least(0), default=4000, metavar="K",
-                   help="refuse a run with more than K near-flat drops (default 4000: about 2 min on a beam, 9 on a "
-                        "plate)")
+                   help="refuse a run with more than K near-flat drops (default 4000: about 20 s on a beam, 3 min on "
+                        "a plate)")
     p.add_argument("--allowable-microstrain", type=_microstrain, metavar="UE",
                    help="the board's strain limit in microstrain, required: no one figure holds for every board "
                         "(limits depend on the board, its parts and joints, and the strain rate), so give your part's "
