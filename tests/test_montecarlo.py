@@ -357,7 +357,7 @@ def test_near_flat_band_reads_a_table_over_orientation(monkeypatch):
     0.05 deg apart, linear between them) once the band's drops lie between fewer nodes than they are. Reference:
     each drop's own solve on the compliant landing's path (`solve_landings`, as `simulate`): within 5e-3 (2e-3
     measured) between 0.5 and 2 deg, where the peak moves fastest with the orientation."""
-    from beamdrop_jax._studies import montecarlo as mc
+    from beamdrop_jax._studies import landings, montecarlo as mc
 
     tables, original = [], mc.orientation_table
 
@@ -371,7 +371,7 @@ def test_near_flat_band_reads_a_table_over_orientation(monkeypatch):
     near = bd.DropDistribution(orientation=("uniform", math.radians(0.5), math.radians(2.0)))
     res = bd.montecarlo(scene, 64, key, near, progress=False)
     assert np.all(np.asarray(res.landing_weight) > 0) and len(tables) == 1 and tables[0].nodes.size <= 31
-    first = np.arange(mc.LANDING_BATCH)
+    first = np.arange(landings.LANDING_BATCH)
     direct = mc.solve_landings(res.samples, mc.sample_axes(res.samples, scene), first)
     for found, expected in zip((res.peak_stress, res.peak_strain, res.peak_deflection), direct[:3]):
         np.testing.assert_allclose(np.asarray(found)[first], expected, rtol=5e-3)
@@ -452,7 +452,7 @@ def test_landings_that_outgrow_the_first_step_limit_are_solved_again(monkeypatch
     (restitution 0.012 to 0.017, 4900 to 6100 steps) outgrow a first limit of 4096; an ordinary one does not. The
     batch against `simulate` on each drop."""
     import beamdrop_jax._response.simulate as simulate_module
-    from beamdrop_jax._studies import montecarlo as mc
+    from beamdrop_jax._studies import landings, montecarlo as mc
 
     monkeypatch.setattr(simulate_module, "FIRST_LANDING_STEPS", 4096)
     short = bd.Numerics(landing_steps=4096)
@@ -463,7 +463,7 @@ def test_landings_that_outgrow_the_first_step_limit_are_solved_again(monkeypatch
     samples = eqx.tree_at(lambda s: (s.drop.orientation, s.contact.friction, s.contact.restitution), scene,
                           (o, mu, e))
     axes = mc.sample_axes(samples, scene)
-    first = mc._solve_batches(samples, axes, np.arange(4), short, False)
+    first = landings._solve_batches(samples, axes, np.arange(4), short, False)
     assert list(first[3] & bd.Flag.SOLVER_FAILED) == [bd.Flag.SOLVER_FAILED] * 3 + [0]
     stress, strain, deflection, flags = mc.solve_landings(samples, axes, np.arange(4), first=short)
     assert not np.any(flags)
@@ -498,9 +498,9 @@ def test_landings_solved_from_several_threads_are_each_drops_own(monkeypatch):
     peaks are `simulate`'s on that drop (to 1e-8: a batch's program rounds differently, measured 3e-9), whatever
     batch and thread solved it, for drops asked for in any order (three batches, the last padded; two threads), and
     the same to the last bit as the batches solved one after another in one thread."""
-    from beamdrop_jax._studies import montecarlo as mc
+    from beamdrop_jax._studies import landings, montecarlo as mc
 
-    monkeypatch.setattr(mc, "_landing_threads", lambda: 2)
+    monkeypatch.setattr(landings, "_landing_threads", lambda: 2)
     scene = bd.Scene.default()
     degrees = np.array([0.0, 0.05, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8, 1.0, 1.2, 1.5, 179.9, 180.2, 180.5, 359.7,
                         359.4, 0.9, 0.7])
@@ -509,7 +509,7 @@ def test_landings_solved_from_several_threads_are_each_drops_own(monkeypatch):
     idx = np.random.default_rng(3).permutation(degrees.size)[:17]
     stress, strain, deflection, flags = mc.solve_landings(samples, axes, idx)
     assert not np.any(flags)
-    monkeypatch.setattr(mc, "_landing_threads", lambda: 1)
+    monkeypatch.setattr(landings, "_landing_threads", lambda: 1)
     for a, b in zip((stress, strain, deflection), mc.solve_landings(samples, axes, idx)):
         np.testing.assert_array_equal(a, b)
     for k, i in enumerate(idx):

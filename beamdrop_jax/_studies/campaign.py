@@ -42,7 +42,8 @@ from .._common.report import summary_text, write_csv
 from .._response.numerics import Numerics
 from .._response.objectives import _scene_peaks
 from .._response.simulate import board_response
-from .montecarlo import _weights, sample_axes, solve_landings
+from .landings import solve_landings
+from .montecarlo import _weights, sample_axes
 from .standards import campaign_drops
 
 UNBENT_NOTE = ("no bending in the plane model: the velocity change runs along the board (a flat landing on a face "

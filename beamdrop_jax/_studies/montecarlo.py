@@ -8,11 +8,9 @@ of them.
 """
 
 import collections
-import concurrent.futures
 import dataclasses
 import hashlib
 import math
-import os
 
 import equinox as eqx
 import jax
@@ -28,12 +26,13 @@ from .._response.numerics import Numerics
 from .._response.objectives import _scene_peaks
 from .._impact.kinematics import housing_impact
 from .._response.landing_path import FIRST_LANDING_STEPS, compliant_weight
-from .._response.simulate import _simulate, drop_motion
+from .._response.simulate import drop_motion
 from .._response.superposition import superposes, superposition_table, table_numerics, table_peaks
 from .._common.compile import filter_jit
 from .._board.base import natural_frequencies
 from .._common.report import summary_text
 from .distribution import _FIELDS, _PLANE_FIELDS, DropDistribution, sample_axes
+from .landings import solve_landings
 
 _AHEAD = 2
 
@@ -290,11 +289,11 @@ def montecarlo(
 
     **Near-flat landings** (`Contact.model` "auto", the default): the drops whose strikes overlap
     (`compliant_weight` > 0; about 6 % of uniform orientations) take the compliant landing's path, `simulate`'s
-    (on 2 cores about 0.005 s a drop on a beam, 0.05 s on a plate, solved from a thread per core;
-    `LANDING_SECONDS`), and replace the fast path's peaks (`MonteCarloResult.landing_weight` says which);
-    "compliant" takes it for every drop, "rigid" for none. Where only the orientation of a plane section
-    varies and the band's drops outnumber its nodes, an `orientation_table` (0.05 deg apart, within 5e-3 of each
-    drop's solve; the last four scenes' stay in memory) gives them. Over `max_landings` solves is refused first.
+    (`LANDING_SECONDS` a drop: 0.005 s on a beam, 0.05 s on a plate), and replace the fast path's peaks
+    (`MonteCarloResult.landing_weight` says which); "compliant" takes it for every drop, "rigid" for none. Where
+    only the orientation of a plane section varies and the band's drops outnumber its nodes, an
+    `orientation_table` (0.05 deg apart, within 5e-3 of each drop's solve; the last four scenes' stay in memory)
+    gives them. Over `max_landings` solves is refused first.
 
     **Arguments:**
     - `key`: a `jax.random.PRNGKey`; the same key gives the same drops and results for any `batch_size` and
@@ -304,8 +303,7 @@ def montecarlo(
     - `devices`: devices to shard each chunk over (default all local devices).
     - `refine_deflection` (direct): refine the deflection peak too, 28 % slower (default: the grid's maximum, a
       lower bound that undershoots by the grid's resolution: by 2.3 % at the 1st percentile and at most 4.8 % over
-      10,000 drops of five scenes, default numerics; stress and strain are always refined).
-      Superposed deflections are always refined.
+      10,000 drops of five scenes, default numerics; stress and strain, and superposed deflections, are refined).
     """
     if not (isinstance(n, (int, np.integer)) and n >= 1):
         raise ValueError(f"n = {n!r}; valid: an int >= 1")
@@ -404,10 +402,6 @@ def montecarlo(
     # `device_put`, not `jnp.asarray`: 1.2 against 5.3 ms for an 8 MB array.
     stress, strain, deflection, flags, valid = jax.device_put(outputs + [outputs[3] == Flag.OK])
     return MonteCarloResult(samples, stress, strain, deflection, flags, valid, jax.device_put(weight))
-
-
-LANDING_BATCH = 8
-"""Near-flat drops solved at once on the compliant path (each a diffrax solve of its landing)."""
 
 
 def _from_rest(scene: Scene, samples: Scene) -> bool:
@@ -641,59 +635,6 @@ to 5e-3), in fewer steps (the JESD22 plate's 416 nodes: 4500 to 7600, against 55
 on the default beam against 17 at 1e-10."""
 
 
-def solve_landings(samples, axes, idx, progress: bool = False,
-                   first: Numerics = Numerics(landing_steps=FIRST_LANDING_STEPS)):
-    """Peak stress, strain, deflection and flags of drops `idx` of a batch on the compliant landing's path
-    (`simulate`'s, default numerics), `LANDING_BATCH` at a time: four arrays of len(idx). Each drop is solved first
-    with `first` (`simulate`'s first step limit, `FIRST_LANDING_STEPS`: a smaller buffer), and again with the
-    default `Numerics.landing_steps` where that is not enough: the same numbers as `simulate`'s."""
-    idx = np.asarray(idx, dtype=int)
-    out = _solve_batches(samples, axes, idx, first, progress)
-    again = np.flatnonzero(out[3] & Flag.SOLVER_FAILED)
-    last = dataclasses.replace(first, landing_steps=Numerics().landing_steps)
-    if again.size and last.landing_steps > first.landing_steps:
-        for o, v in zip(out, _solve_batches(samples, axes, idx[again], last, progress)):
-            o[again] = v
-    return out
-
-
-def _solve_batches(samples, axes, idx, numerics: Numerics, progress: bool):
-    out = [np.empty(idx.size, dtype) for dtype in (float_dtype(),) * 3 + (np.int32,)]
-    leaves, treedef = jax.tree_util.tree_flatten(samples)
-    batched = [a is not None for a in treedef.flatten_up_to(axes)]
-    x64 = jax.config.jax_enable_x64  # the caller's, which may be a thread's own (`jax.enable_x64(False)`)
-
-    def solve(start):
-        part = idx[start:start + LANDING_BATCH]
-        padded = np.concatenate([part, np.repeat(part[-1:], LANDING_BATCH - part.size)])  # one compiled shape
-        chunk = treedef.unflatten([np.asarray(v)[padded] if b else v for v, b in zip(leaves, batched)])
-        with jax.enable_x64(x64):
-            for o, v in zip(out, _compliant_peaks(chunk, axes, numerics)):
-                o[start:start + part.size] = np.asarray(v)[:part.size]
-
-    starts = range(0, idx.size, LANDING_BATCH)
-    if not starts:
-        return out
-    with tqdm(total=len(starts), desc="near-flat landings", disable=not progress, leave=False) as bar:
-        solve(starts[0])  # compiles, once
-        bar.update(1)
-        # XLA on CPU runs one batch's solve (a loop of small steps) on one core, and JAX runs the calls of one
-        # thread one after another: batches solved from several threads keep the other cores busy (on 2 cores a
-        # table of 404 near-flat landings took 4.2 against 7.8 ms each).
-        pool = concurrent.futures.ThreadPoolExecutor(_landing_threads())
-        try:
-            for _ in pool.map(solve, starts[1:]):
-                bar.update(1)
-        finally:
-            pool.shutdown(wait=True, cancel_futures=True)  # on Ctrl-C: the batches running finish, no others
-    return out
-
-
-def _landing_threads() -> int:
-    """Threads solving near-flat landings at once: one per core, at most 4."""
-    return max(1, min(4, os.cpu_count() or 1))
-
-
 def landing_weights(scene: Scene, n: int, key, distribution: "DropDistribution | None" = None):
     """The compliant landing's weight (`compliant_weight`) of n random drops of `scene` drawn as `montecarlo`
     draws them: > 0 marks the near-flat drops that take the compliant path."""
@@ -706,14 +647,5 @@ def landing_weights(scene: Scene, n: int, key, distribution: "DropDistribution |
 def _weights(samples, axes, from_rest: bool = False):
     def one(s):
         return compliant_weight(s, Numerics(from_rest=from_rest), housing_impact(s))
-
-    return jax.vmap(one, in_axes=(axes,))(samples)
-
-
-@filter_jit
-def _compliant_peaks(samples, axes, numerics: Numerics):
-    def one(s):
-        r = _simulate(s, numerics, None, "compliant")
-        return r.peak.stress, r.peak.strain, r.peak.deflection, r.flags
 
     return jax.vmap(one, in_axes=(axes,))(samples)
