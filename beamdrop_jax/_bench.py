@@ -272,15 +272,15 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     return rows
 
 
-def landing_bench(n_drops: int = 1 << 20) -> dict:
-    """A whole `montecarlo` of the default beam scene over uniform orientations on `"auto"` (near-flat drops from
-    an `orientation_table` built in the call; then, timed again with other drops, from the table it kept), against
-    the same call on the rigid law (the first strike alone, the superposed fast path), after compiling: drops/s of
-    each, the band's share, the table's nodes and the nodes solved (one of each set of mirror images), and the
-    seconds per solved node."""
+def landing_bench(n_drops: int = 1 << 20, scene: Scene | None = None, name: str = "landing") -> dict:
+    """A whole `montecarlo` of `scene` (default: the default beam scene) over uniform orientations on `"auto"`
+    (near-flat drops from an `orientation_table` built in the call; then, timed again with other drops, from the
+    table it kept), against the same call on the rigid law (the first strike alone, the superposed fast path), after
+    compiling: drops/s of each, the band's share, the table's nodes and the nodes solved (one of each set of mirror
+    images), and the seconds per solved node; keys start with `name`."""
     from ._studies.montecarlo import _GRID_WEIGHTS, _TABLES, _nodes_around, _representatives
 
-    scene, key = Scene.default(), jax.random.PRNGKey(2026)
+    scene, key = Scene.default() if scene is None else scene, jax.random.PRNGKey(2026)
     rigid = _rigid(scene)
     montecarlo(rigid, n_drops, key, progress=False)
     montecarlo(scene, n_drops, jax.random.PRNGKey(1), progress=False)  # compiles every program of the call
@@ -294,22 +294,24 @@ def landing_bench(n_drops: int = 1 << 20) -> dict:
     band = np.asarray(result.landing_weight) > 0
     nodes = _nodes_around(np.asarray(result.samples.drop.orientation)[band])
     solved = np.unique(_representatives(scene, nodes)).size
-    return dict(landing_montecarlo_drops=n_drops, landing_auto_drops_per_s=n_drops / auto_s,
-                landing_auto_kept_drops_per_s=n_drops / kept_s,
-                landing_rigid_drops_per_s=n_drops / rigid_s, landing_band_share=float(band.mean()),
-                landing_table_nodes=nodes.size, landing_table_solved=solved,
-                landing_seconds_per_node=(auto_s - rigid_s) / solved)
+    out = dict(montecarlo_drops=n_drops, auto_drops_per_s=n_drops / auto_s, auto_kept_drops_per_s=n_drops / kept_s,
+               rigid_drops_per_s=n_drops / rigid_s, band_share=float(band.mean()), table_nodes=nodes.size,
+               table_solved=solved, seconds_per_node=(auto_s - rigid_s) / max(solved, 1))
+    return {f"{name}_{k}": v for k, v in out.items()}
 
 
-def _print_landings(landings: dict) -> None:
+OFF_CENTRE = (0.005, 0.003)
+"""Where `beamdrop bench` moves the default board (m from the housing's centre) for a scene without mirror images."""
+
+
+def _print_landings(landings: dict, name: str = "landing", label: str = "default beam") -> None:
     """`run_bench`'s progress line for `landing_bench`."""
-    print(f"  Monte-Carlo over uniform orientations, {landings['landing_montecarlo_drops']} drops, default beam: "
-          f"\"auto\" {landings['landing_auto_drops_per_s']:.3g} drops/s ({100 * landings['landing_band_share']:.2g} % "
-          f"near flat, from a table of {landings['landing_table_nodes']} orientations built in the call, "
-          f"{landings['landing_table_solved']} solved (mirror images once) at {landings['landing_seconds_per_node']:.3g} "
-          f"s each; {landings['landing_auto_kept_drops_per_s']:.3g} drops/s "
-          "in later calls, the table kept), \"rigid\" (first strike) "
-          f"{landings['landing_rigid_drops_per_s']:.3g} drops/s", flush=True)
+    r = {k[len(name) + 1:]: v for k, v in landings.items() if k.startswith(f"{name}_")}
+    print(f"  Monte-Carlo over uniform orientations, {r['montecarlo_drops']} drops, {label}: \"auto\" "
+          f"{r['auto_drops_per_s']:.3g} drops/s ({100 * r['band_share']:.2g} % near flat, from a table of "
+          f"{r['table_nodes']} orientations built in the call, {r['table_solved']} solved (mirror images once) at "
+          f"{r['seconds_per_node']:.3g} s each; {r['auto_kept_drops_per_s']:.3g} drops/s in later calls, the table "
+          f"kept), \"rigid\" (first strike) {r['rigid_drops_per_s']:.3g} drops/s", flush=True)
 
 
 def plate_bench(repeats: int = 5, n_drops: int = 1 << 20) -> dict:
@@ -392,9 +394,12 @@ def _board_benches(quick: bool, progress: bool) -> tuple[dict, dict]:
     if progress:
         _print_plates(plates)
     if not quick:
-        plates.update(landing_bench())
-        if progress:
-            _print_landings(plates)
+        off = Scene.default().replace(**{"placement.centre": OFF_CENTRE})
+        label = f"default beam moved to ({1e3 * OFF_CENTRE[0]:g}, {1e3 * OFF_CENTRE[1]:g}) mm (no mirror images)"
+        for name, scene, text in (("landing", None, "default beam"), ("landing_off_centre", off, label)):
+            plates.update(landing_bench(scene=scene, name=name))
+            if progress:
+                _print_landings(plates, name, text)
     boxes = box_bench(repeats=3 if quick else 5)
     if progress:
         _print_boxes(boxes)
