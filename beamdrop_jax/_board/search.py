@@ -14,6 +14,7 @@ alone, so the peak is stationary in t there.
 """
 
 import functools
+import math
 from collections.abc import Callable
 
 import equinox as eqx
@@ -21,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
+from .._common.trig import sincos
 from .beam import mode_shapes
 from .plate_checks import clip_to_plate
 
@@ -313,35 +315,100 @@ def _outside_mounts(plate, x, y):
     return _over_mounts(plate, (x, y), move)
 
 
+RING_POINTS = 16
+"""Search points on each mount's circle, the edge of its disc, where a point support's strain concentrates. The
+grid's cells (5.5 x 3.2 mm on the JESD22 board) are as large as a screw's disc, so a peak on a circle lies between
+grid points; a search that reached it from the plate's interior, each step projected back onto the circle, stopped
+short of the maximum along it: 4.7 % below on a plate on one screw, while its error estimate said 1.5e-3."""
+
+
+def ring_points(plate):
+    """`RING_POINTS` points on each mount's circle (mount-major, at angles 2 pi k / RING_POINTS from the x axis):
+    (x, y) (m), each (mounts * RING_POINTS,); empty without mounts."""
+    if plate.mounts is None:
+        empty = jnp.zeros((0,), jnp.result_type(plate.length))
+        return empty, empty
+    s, c = sincos(jnp.arange(RING_POINTS, dtype=jnp.result_type(plate.length)) * (2 * math.pi / RING_POINTS))
+    return ((plate.mounts[:, :1] + plate.mount_radius * c).ravel(),
+            (plate.mounts[:, 1:] + plate.mount_radius * s).ravel())
+
+
 def near_mounts(plate, points) -> Array:
-    """Which grid points (x, y) lie inside a mount's disc (the search leaves them out); all False without mounts."""
+    """Which search points (x, y) the search leaves out: inside a mount's disc, or off the plate (`ring_points` of
+    a mount on an edge); all False without mounts."""
     x, y = points
     if plate.mounts is None:
         return jnp.zeros(x.shape, bool)
-    return jnp.any(jnp.hypot(x[:, None] - plate.mounts[:, 0], y[:, None] - plate.mounts[:, 1])
-                   < plate.mount_radius * (1 - 1e-9), axis=1)
+    slack = 1e-9 * plate.length
+    off = (x < -slack) | (x > plate.length + slack) | (jnp.abs(y) > plate.width / 2 + slack)
+    return off | jnp.any(jnp.hypot(x[:, None] - plate.mounts[:, 0], y[:, None] - plate.mounts[:, 1])
+                         < plate.mount_radius * (1 - 1e-9), axis=1)
 
 
-def plate_starts(plate, measure: Callable, fields, points, candidates: int, times=None, at_times=None):
-    """Where a plate search starts: the `candidates` largest local maxima in time of the measure's largest value
-    over the grid's points (mount discs left out), and the point that has it at each of those times.
+ENVELOPE_CHUNK = 128
+"""Times per pass of `plate_envelopes`: the fields of one pass on the JESD22 board's grid (625 points) take 2.6 MB,
+so they stay in a core's cache between the matrix products that make them and the measures that read them; the
+whole window's (1057 times) took 21 MB, and the grid's search ran two to three times slower where XLA scheduled
+its passes beside other work."""
 
-    `fields`: (u, k_xx, k_yy, k_xy) on the grid, each (points, nt); `points`: their (x, y) (m). Returns the time
-    indices, point indices and values, each (candidates,). Over the whole grid the measure is only max-reduced,
-    which XLA fuses with the expression that makes it (the grid is never stored); the argmax, several times the
-    cost of a max on CPU, runs at the candidate times alone. With `times` (indices) and `at_times` (the fields at
-    those times, each (points, len(times))) instead of `fields`, the search starts at those times."""
+
+def plate_envelopes(plate, measures, points, *, fields=None, shapes=None, Q=None, mask=None):
+    """Each of `measures`' largest value over the search points `points` (x, y) (m; mount discs and points off the
+    plate left out) at every time of the grid, (len(measures), nt): from `fields` (u, k_xx, k_yy, k_xy) there, each
+    (points, nt), or from the mode shapes there (`shapes`, each (points, n)), the modal factors `Q` = (scale (n,),
+    R (nt, n)) and the modal mask `mask`, in passes of `ENVELOPE_CHUNK` times (the fields are never stored
+    whole)."""
     near = near_mounts(plate, points)
-    outside = lambda A: jnp.where(near[:, None], -jnp.inf, A)  # noqa: E731
-    if times is None:
-        envelope = outside(measure(plate, *fields)).max(axis=0)
-        left = jnp.concatenate([jnp.full((1,), -jnp.inf, envelope.dtype), envelope[:-1]])
-        right = jnp.concatenate([envelope[1:], jnp.full((1,), -jnp.inf, envelope.dtype)])
-        times = _largest(jnp.where((envelope >= left) & (envelope >= right), envelope, -jnp.inf),
-                         min(candidates, envelope.shape[0]))
-        at_times = [f[:, times] for f in fields]
-    A = outside(measure(plate, *at_times))
+
+    def envelope(fields):
+        return jnp.stack([jnp.where(near[:, None], -jnp.inf, m(plate, *fields)).max(axis=0) for m in measures])
+
+    if fields is not None:
+        return envelope(fields)
+    scale, R = Q
+    nt, n = R.shape
+    passes = -(-nt // ENVELOPE_CHUNK)
+    padded = jnp.concatenate([R, jnp.zeros((passes * ENVELOPE_CHUNK - nt, n), R.dtype)])
+    weighted = [v * (mask * scale) for v in shapes]
+    out = jax.lax.map(lambda Rk: envelope([w @ Rk.T for w in weighted]), padded.reshape(passes, ENVELOPE_CHUNK, n))
+    return jnp.moveaxis(out, 0, 1).reshape(len(measures), -1)[:, :nt]
+
+
+def candidate_times(envelope, candidates: int):
+    """Indices of the `candidates` largest local maxima in time of an envelope (nt,) (a lone spike at an end
+    counts)."""
+    left = jnp.concatenate([jnp.full((1,), -jnp.inf, envelope.dtype), envelope[:-1]])
+    right = jnp.concatenate([envelope[1:], jnp.full((1,), -jnp.inf, envelope.dtype)])
+    return _largest(jnp.where((envelope >= left) & (envelope >= right), envelope, -jnp.inf),
+                    min(candidates, envelope.shape[0]))
+
+
+def plate_starts(plate, measure: Callable, points, times, at_times):
+    """Where a plate search starts: at each of the time indices `times` (e.g. `candidate_times`), the search point
+    of `points` (x, y) (m; mount discs and points off the plate left out) with the measure's largest value, from
+    the fields there at those times `at_times` (u, k_xx, k_yy, k_xy), each (points, len(times)). Returns the time
+    indices, point indices and values."""
+    A = jnp.where(near_mounts(plate, points)[:, None], -jnp.inf, measure(plate, *at_times))
     return times, A.argmax(axis=0), A.max(axis=0)
+
+
+def _with_the_mounts(plate, px, py):
+    """A maximiser (px, py) (m; no gradient) as a function of the mounts: on a mount's circle the constrained
+    maximiser moves with the mount (and with the radius); elsewhere it stays."""
+    if plate.mounts is None:
+        return px, py
+
+    def move(point, mount):
+        px, py = point
+        dx, dy = jax.lax.stop_gradient((px - mount[0], py - mount[1]))
+        d = jnp.sqrt(dx * dx + dy * dy)
+        on = d <= jax.lax.stop_gradient(plate.mount_radius) * (1 + 1e-6)
+        d_safe = jnp.where(d > 0, d, 1.0)
+        return (jnp.where(on, mount[0] + plate.mount_radius * dx / d_safe, px),
+                jnp.where(on, mount[1] + plate.mount_radius * dy / d_safe, py))
+
+    # Clipped: a disc across an edge (flagged) would put the point off the plate.
+    return clip_to_plate(plate, *_over_mounts(plate, (px, py), move))
 
 
 def find_plate_peak(
@@ -361,13 +428,15 @@ def find_plate_peak(
     """Peak over a plate and the window of `measure(plate, u, k_xx, k_yy, k_xy)` (e.g. the largest principal
     surface strain) of the field with modal coefficients `coeffs` (the modes' `PlateModes`; `modal(t)` the modal
     coordinates), from the evenly spaced grid `xi` x `eta` (x / L, y / W) and times `t`, starting from `starts`
-    (`plate_starts`: grid time and point indices and values).
+    (`plate_starts`: grid time and point indices and values; points past the grid's are `ring_points`).
     Each start is refined by Newton's method in (x, y, t) in a trust region of one grid cell (derivatives by
-    central differences), steps that enter a mount disc projected onto its circle. The value's gradient is taken
+    central differences), steps that enter a mount disc projected onto its circle; a start on a mount's circle is
+    refined along the circle, in (angle, t). The value's gradient is taken
     at the maximiser (envelope theorem); on a mount's circle the point moves with the mount. The error estimate is
     the larger of the last step's gain and the gain the quadratic model still expects within a cell of the point
     returned (bounds and discs respected), relative to the value."""
     plate = modes.plate
+    n_plane = xi.shape[0] * eta.shape[0]
     cell = jnp.stack([xi[1] - xi[0], eta[1] - eta[0], t[1] - t[0]])
     xi, eta = (v.ravel() for v in jnp.meshgrid(xi, eta, indexing="ij"))
     idx, where_p, f_start = starts
@@ -376,20 +445,37 @@ def find_plate_peak(
     plate_c = modes_c.plate
     cell = jax.lax.stop_gradient(cell)
 
-    def value(z):  # z = (xi, eta, t) / cell
-        p = z * cell
-        px, py = _outside_mounts(plate_c, p[0] * plate_c.length, p[1] * plate_c.width)
-        q = modal_c(p[2])
-        return measure(plate_c, *(jnp.sum(coeffs_c * q * s) for s in modes_c.shapes(px, py)))
+    def point(z, mount):
+        """(x, y) (m) of search coordinates z: (xi, eta) / cell on the plane (`mount` < 0), else the angle / its
+        cell on that mount's circle (clipped to the plate: a mount on an edge), out of the mount discs."""
+        px, py = z[0] * cell[0] * plate_c.length, z[1] * cell[1] * plate_c.width
+        if plate_c.mounts is not None:
+            s, c = sincos(z[0] * (2 * math.pi / RING_POINTS))
+            centre = plate_c.mounts[jnp.maximum(mount, 0)]
+            rx, ry = clip_to_plate(plate_c, centre[0] + plate_c.mount_radius * c, centre[1] + plate_c.mount_radius * s)
+            px, py = _outside_mounts(plate_c, jnp.where(mount < 0, px, rx), jnp.where(mount < 0, py, ry))
+        return px, py
 
-    lo = jnp.stack([0.0, -0.5, 0.0]) / cell
-    hi = jnp.stack([1.0, 0.5, window_c]) / cell
+    def value(z, mount):
+        q = modal_c(z[2] * cell[2])
+        return measure(plate_c, *(jnp.sum(coeffs_c * q * s) for s in modes_c.shapes(*point(z, mount))))
 
-    def project(z):
+    lo_plane = jnp.stack([0.0, -0.5, 0.0]) / cell
+    hi_plane = jnp.stack([1.0, 0.5, window_c]) / cell
+    free = jnp.array([-jnp.inf, -jnp.inf, jnp.inf, jnp.inf])  # a circle's angle (and its unused second coordinate)
+
+    def bounds(mount):
+        on_ring = mount >= 0
+        return (jnp.where(on_ring, jnp.stack([free[0], free[1], lo_plane[2]]), lo_plane),
+                jnp.where(on_ring, jnp.stack([free[2], free[3], hi_plane[2]]), hi_plane))
+
+    def project(z, mount):
+        lo, hi = bounds(mount)
         z = jnp.clip(z, lo, hi)
         px, py = _outside_mounts(plate_c, z[0] * cell[0] * plate_c.length, z[1] * cell[1] * plate_c.width)
         # Clipped again: the disc of a mount near an edge reaches off the plate (the plate's checks refuse it).
-        return jnp.clip(jnp.stack([px / plate_c.length / cell[0], py / plate_c.width / cell[1], z[2]]), lo, hi)
+        plane = jnp.clip(jnp.stack([px / plate_c.length / cell[0], py / plate_c.width / cell[1], z[2]]), lo, hi)
+        return jnp.where(mount < 0, plane, z.at[1].set(0.0))
 
     # Derivatives by central differences on a 19-point stencil (h = 1/16 cell): one batched evaluation, which
     # compiles to a fraction of the program that nested automatic differentiation makes.
@@ -399,8 +485,8 @@ def find_plate_peak(
     stencil = np.concatenate([np.zeros((1, 3)), eye, -eye] + [np.stack([eye[i] * a + eye[j] * b for a in (1, -1)
                                                                         for b in (1, -1)]) for i, j in pairs]) * h
 
-    def derivatives(z):
-        f = jax.vmap(value)(z + stencil)
+    def derivatives(z, mount):
+        f = jax.vmap(value, in_axes=(0, None))(z + stencil, mount)
         f0, plus, minus = f[0], f[1:4], f[4:7]
         g = (plus - minus) / (2 * h)
         H = jnp.diag((plus - 2 * f0 + minus) / h**2)
@@ -409,12 +495,14 @@ def find_plate_peak(
             H = H.at[i, j].set((pp - pm - mp + mm) / (4 * h * h)).at[j, i].set((pp - pm - mp + mm) / (4 * h * h))
         return f0, g, H
 
-    def refine_one(z0, f_grid):
+    def refine_one(z0, f_grid, mount):
+        lo, hi = bounds(mount)
+
         # Each pass evaluates the pending point, keeps it if it gains, and proposes the next from the best so
         # far: the start is the first pending point, so the program holds one copy of the evaluation.
         def step(carry, _):
             z, f, g, H, _, _, radius, z_new = carry
-            f_new, g_new, H_new = derivatives(z_new)
+            f_new, g_new, H_new = derivatives(z_new, mount)
             better = f_new > f
             keep = lambda a, b: jax.tree_util.tree_map(lambda u, v: jnp.where(better, u, v), a, b)  # noqa: E731
             z, f_kept, g, H = keep((z_new, f_new, g_new, H_new), (z, f, g, H))
@@ -428,17 +516,17 @@ def find_plate_peak(
             g_free = jnp.where(held, 0.0, g)
             H_free = jnp.where(held[:, None] | held[None, :], -jnp.eye(3, dtype=H.dtype), H)
             # Newton along the Hessian's concave directions, half a cell uphill along the others (none where the
-            # measure is flat: a plate bent uniformly across its width).
+            # measure is flat: a plate bent uniformly across its width, a circle's unused coordinate).
             w, V = jnp.linalg.eigh(H_free)
             gv = V.T @ g_free
             uphill = 0.5 * jnp.sign(gv) * (jnp.abs(gv) > 1e-9 * jnp.abs(f_kept))
             u = V @ jnp.where(w < 0, -gv / jnp.where(w < 0, w, -1.0), uphill)
             # What the quadratic model still expects from a step of at most a cell (whatever the trust radius, which
             # shrinks where steps fail): the search's error estimate, which a stalled search cannot hide.
-            u_cell = project(z + u / jnp.maximum(1.0, jnp.max(jnp.abs(u)))) - z
+            u_cell = project(z + u / jnp.maximum(1.0, jnp.max(jnp.abs(u))), mount) - z
             expected = jnp.maximum(g @ u_cell + 0.5 * u_cell @ H @ u_cell, 0.0)
             u = u * jnp.minimum(1.0, radius / jnp.maximum(jnp.max(jnp.abs(u)), 1e-30))
-            return (z, f_kept, g, H, gain, expected, radius, project(z + u)), None
+            return (z, f_kept, g, H, gain, expected, radius, project(z + u, mount)), None
 
         zero = jnp.zeros_like(f_grid)
         carry = (z0, jnp.full_like(f_grid, -jnp.inf), jnp.zeros_like(z0), jnp.zeros((3, 3), z0.dtype), zero, zero,
@@ -446,26 +534,20 @@ def find_plate_peak(
         carry, _ = jax.lax.scan(step, carry, None, length=(newton_steps if refine else 0) + 1)
         z, f, _, _, gain, expected = carry[:6]
         grid_wins = ~(f >= f_grid)
-        return jnp.where(grid_wins, z0, z), jnp.maximum(f, f_grid), jnp.maximum(gain, expected)
+        z = jnp.where(grid_wins, z0, z)
+        return jnp.stack([*point(z, mount), z[2] * cell[2]]), jnp.maximum(f, f_grid), jnp.maximum(gain, expected)
 
-    z0 = jnp.stack([xi[where_p], eta[where_p], t[idx]], axis=-1) / cell
-    z_all, f_all, gain_all = jax.vmap(refine_one)(jax.lax.stop_gradient(z0), jax.lax.stop_gradient(f_start))
+    ring = where_p - n_plane
+    mount = jnp.where(ring >= 0, ring // RING_POINTS, -1)
+    plane_p = jnp.minimum(where_p, n_plane - 1)
+    z0 = jnp.where((ring >= 0)[:, None], jnp.stack([ring % RING_POINTS, jnp.zeros_like(ring), idx], axis=-1),
+                   jnp.stack([xi[plane_p] / cell[0], eta[plane_p] / cell[1], idx], axis=-1)).astype(cell.dtype)
+    z0 = z0.at[:, 2].set(t[idx] / cell[2])
+    p_all, f_all, gain_all = jax.vmap(refine_one)(jax.lax.stop_gradient(z0), jax.lax.stop_gradient(f_start), mount)
     tied = f_all >= jnp.max(f_all) * (1.0 - 1e-9)
-    best = jnp.argmin(jnp.where(tied, z_all[:, 2], jnp.inf))
-    p_best = jax.lax.stop_gradient(z_all[best] * cell)
-    px, py = p_best[0] * plate.length, p_best[1] * plate.width
-    if plate.mounts is not None:
-        # On a mount's circle the constrained maximiser moves with the mount (and with the radius).
-        def move(point, mount):
-            px, py = point
-            dx, dy = jax.lax.stop_gradient((px - mount[0], py - mount[1]))
-            d = jnp.sqrt(dx * dx + dy * dy)
-            on = d <= jax.lax.stop_gradient(plate.mount_radius) * (1 + 1e-6)
-            d_safe = jnp.where(d > 0, d, 1.0)
-            return (jnp.where(on, mount[0] + plate.mount_radius * dx / d_safe, px),
-                    jnp.where(on, mount[1] + plate.mount_radius * dy / d_safe, py))
-
-        px, py = clip_to_plate(plate, *_over_mounts(plate, (px, py), move))  # a disc across an edge (flagged) would put the point off the plate
+    best = jnp.argmin(jnp.where(tied, p_all[:, 2], jnp.inf))
+    p_best = jax.lax.stop_gradient(p_all[best])
+    px, py = _with_the_mounts(plate, p_best[0], p_best[1])
     t_star = jnp.where(p_best[2] >= window * (1.0 - 1e-9), window, p_best[2])
     q = modal(t_star)
     f = measure(plate, *(jnp.sum(coeffs * q * s) for s in modes.shapes(px, py)))

@@ -40,6 +40,7 @@ from .pulses import unit_response, unit_response_jet
 from .._common.checks import Flag, Range, as_int, as_real, combine, flag_if, float_dtype
 from .._impact.motion import HalfSine
 from .._board.plate import Plate
+from .._board.search import ring_points
 from .._board.beam import Board
 from .._scene.containers import Scene, scene_flags
 from .surface import PLATE_MEASURES, _plate_points, _plate_searches
@@ -338,13 +339,16 @@ def _build_plate(plate: Plate, duration, numerics: Numerics, directions, columns
     unit = support_participation(modes, mask.shape[0])[:, :columns] * mask[:, None]
     _, R = S.Q
     _, _, _, shapes = _plate_points(plate, modes)
-    G = jnp.stack([jnp.stack([(v * unit[:, c]) @ R.T for v in shapes]) for c in range(columns)])  # (C, 4, pts, nt)
+    # On the grid and on the mounts' circles (`ring_points`; none without mounts): each (C, 4, points, nt).
+    rings = modes.shapes(*ring_points(plate)) if plate.mounts is not None else None
+    G = [None if part is None else jnp.stack([jnp.stack([(v * unit[:, c]) @ R.T for v in part])
+                                              for c in range(columns)]) for part in (shapes, rings)]
     omega, zeta = S.modal.omega, S.modal.zeta
 
     def direction(d):
         beta = unit @ d
         D = S._replace(modal=eqx.tree_at(lambda modal: modal.beta, S.modal, beta[None]), Q=(beta, R))
-        components = jnp.tensordot(d, G, axes=1)
+        components = tuple(None if part is None else jnp.tensordot(d, part, axes=1) for part in G)
         found = _plate_searches(D, plate, numerics, modes, PLATE_QUANTITIES, mask, fields=components)
         response = unit_response(found.t[:, None], omega, zeta, duration)  # (3, M)
         at = modes.shapes(found.x, found.y)  # 4 x (3, M)

@@ -10,7 +10,7 @@ import numpy as np
 from .._board.base import Gauges, Peak
 from .._board.plate import surface_strain, surface_stress
 from .._board.plate_checks import blank_readings, response_flags
-from .._board.search import field_on_grid, find_plate_peak, plate_starts
+from .._board.search import candidate_times, field_on_grid, find_plate_peak, plate_envelopes, plate_starts, ring_points
 from .._common.checks import Flag, combine, flag_if, float_dtype
 from .closed_form import ClosedFormModes
 from .numerics import Numerics
@@ -50,21 +50,40 @@ def _plate_points(plate, modes):
 def _plate_searches(S: _Setup, plate, numerics: Numerics, modes, kinds: tuple[str, ...], mask, check=None,
                     fields=None):
     """Peaks of the measures `kinds` (of `PLATE_MEASURES`) of the field with modal mask `mask`: the fields on the
-    grid once (or `fields`, (u, k_xx, k_yy, k_xy) on the grid, when the caller has them), each kind's own
-    candidates, then one batched refinement (one compiled copy). With a second mask `check`, one more row: the
-    first kind's peak with that mask, started at the first kind's candidate times (its fields are evaluated at
-    those times alone: it measures the same peak with more modes)."""
+    grid and on the mounts' circles (`ring_points`) once (or `fields`, (u, k_xx, k_yy, k_xy) on the grid and the same
+    on the circles, when the caller has them), each kind's own candidates on the grid and on the circles (a peak at
+    a screw need not outdo the plate's interior at the same time to be searched), then one batched refinement (one
+    compiled copy). With a second mask `check`, one more row: the first kind's peak with that mask, started at the
+    first kind's candidate times (its fields are evaluated at those times alone: it measures the same peak with
+    more modes)."""
     _, _, points, shapes = _plate_points(plate, modes)
-    fields = [field_on_grid(mask, S.Q, v) for v in shapes] if fields is None else fields
+    parts = [(points, shapes)]
+    if plate.mounts is not None:
+        rings = ring_points(plate)
+        parts.append((rings, modes.shapes(*rings)))
     measures = [PLATE_MEASURES[k] for k in kinds]
     candidates = numerics.candidates if numerics.refine else 1
-    starts = [plate_starts(plate, m, fields, points, candidates) for m in measures]
+    scale, R = S.Q
+    starts = [[] for _ in measures]
+    for part, (where, part_shapes) in enumerate(parts):
+        given = None if fields is None else fields[part]
+        envelopes = plate_envelopes(plate, measures, where, fields=given, shapes=part_shapes, Q=S.Q, mask=mask)
+        for m, (measure, envelope) in enumerate(zip(measures, envelopes)):
+            times = candidate_times(envelope, candidates)
+            at_times = ([field_on_grid(mask, (scale, R[times]), v) for v in part_shapes] if given is None
+                        else [f[:, times] for f in given])
+            starts[m].append(plate_starts(plate, measure, where, times, at_times))
+    # One set of starts per measure: the grid's, then the circles' (their points past the grid's: `find_plate_peak`).
+    n_plane = points[0].shape[0]
+    starts = [tuple(jnp.concatenate([a[k] + (n_plane * i if k == 1 else 0) for i, a in enumerate(rows)])
+                    for k in range(3)) for rows in starts]
     masks = [mask] * len(kinds)
     if check is not None:
-        scale, R = S.Q
         times = starts[0][0]
-        at_times = [field_on_grid(check, (scale, R[times]), v) for v in shapes]
-        starts.append(plate_starts(plate, measures[0], None, points, candidates, times, at_times))
+        every = [jnp.concatenate(v) for v in zip(*(p[1] for p in parts))]
+        at_times = [field_on_grid(check, (scale, R[times]), v) for v in every]
+        starts.append(plate_starts(plate, measures[0], tuple(jnp.concatenate(v) for v in zip(*(p[0] for p in parts))),
+                                   times, at_times))
         masks.append(check)
         measures.append(measures[0])
     xi, eta = _plate_grid(plate)
