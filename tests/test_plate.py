@@ -378,10 +378,7 @@ def test_a_peak_on_a_screws_circle_is_found():
     assert read > 550e-6
     assert float(res.peak.strain) >= read * (1 - 1e-7), (float(res.peak.strain), read)
     assert float(res.peak.search_error) < 1e-6
-    # The stress peak too sits on the circle, and a denser search (4x the times, 3x the candidates) agrees.
-    assert abs(np.hypot(float(res.peak.x) - mount[0], float(res.peak.y) - mount[1]) - 3e-3) < 1e-12
-    dense = bd.simulate(scene, bd.Numerics(points_per_period=16, candidates=12))
-    assert abs(float(dense.peak.stress) / float(res.peak.stress) - 1) < 1e-7
+    assert abs(np.hypot(float(res.peak.x) - mount[0], float(res.peak.y) - mount[1]) - 3e-3) < 1e-12  # stress's too
 
 
 def test_sensitivities_of_a_plate_obey_the_scaling_laws_and_central_differences():

@@ -462,12 +462,11 @@ def find_plate_peak(
 
     lo_plane = jnp.stack([0.0, -0.5, 0.0]) / cell
     hi_plane = jnp.stack([1.0, 0.5, window_c]) / cell
-    free = jnp.array([-jnp.inf, -jnp.inf, jnp.inf, jnp.inf])  # a circle's angle (and its unused second coordinate)
+    circle_axes = np.array([True, True, False])  # on a circle the angle (and the unused coordinate) is free
 
     def bounds(mount):
-        on_ring = mount >= 0
-        return (jnp.where(on_ring, jnp.stack([free[0], free[1], lo_plane[2]]), lo_plane),
-                jnp.where(on_ring, jnp.stack([free[2], free[3], hi_plane[2]]), hi_plane))
+        free = (mount >= 0) & circle_axes
+        return jnp.where(free, -jnp.inf, lo_plane), jnp.where(free, jnp.inf, hi_plane)
 
     def project(z, mount):
         lo, hi = bounds(mount)

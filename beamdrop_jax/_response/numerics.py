@@ -39,7 +39,7 @@ class Numerics(eqx.Module):
     - `points_per_period`: time-grid points per period of the highest computed mode (N = 0 estimate);
       `x_points_per_mode`: spatial grid points per computed mode.
     - `refine`: Newton refinement of the grid's best `candidates` peaks (`newton_steps` each; on a plate with
-      mounts, as many again from the points on the mounts' circles).
+      mounts, half as many again, rounded up, from the points on the mounts' circles).
     - `convergence_rtol`: `converged` when the error estimate (`Response.convergence`) is below this.
     - `stretching`: nonlinear mid-plane stretching for axially immovable supports (diffrax only).
     - `law`: restitution law of the housing impact.
