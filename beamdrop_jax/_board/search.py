@@ -319,7 +319,7 @@ RING_POINTS = 16
 """Search points on each mount's circle, the edge of its disc, where a point support's strain concentrates. The
 grid's cells (5.5 x 3.2 mm on the JESD22 board) are as large as a screw's disc, so a peak on a circle lies between
 grid points; a search that reached it from the plate's interior, each step projected back onto the circle, stopped
-short of the maximum along it: 4.7 % below on a plate on one screw, while its error estimate said 1.5e-3."""
+short of the maximum along it: 4.4 % below on a plate on one screw, while its error estimate said 1.5e-3."""
 
 
 def ring_points(plate):
