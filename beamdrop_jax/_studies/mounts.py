@@ -194,44 +194,57 @@ def optimize_mounts(
             values.append(jax.vmap(lambda s: peak(s, landing))(moved) if batched else peak(moved, landing)[None])
         return risk(jnp.concatenate(values), objective, alpha)
 
-    def raw(z):
-        return strain_at(mounts_of(z))
-
-    def f(z):
-        value = raw(z)
+    def penalised(m):
+        value = strain_at(m)
         if min_spacing > 0:
-            m = mounts_of(z)
             d = jnp.sqrt(jnp.sum((m[:, None] - m[None]) ** 2, axis=-1) + jnp.eye(m.shape[0]))
-            value = value * (1 + 1e3 * jnp.sum(jnp.triu(jnp.maximum(min_spacing - d, 0.0), 1) ** 2) / min_spacing**2)
-        return value
+            return value * (1 + 1e3 * jnp.sum(jnp.triu(jnp.maximum(min_spacing - d, 0.0), 1) ** 2) / min_spacing**2), value
+        return value, value
+
+    # One compiled program evaluates every layout: the steps', the last one's and the report's (the strain of the
+    # layout returned and of the scene's own), so the optimiser compiles its objective once.
+    @filter_jit
+    def evaluate(M):
+        """Each layout's objective, its gradient in the mounts, and its strain (the objective without penalty)."""
+        (values, strains), grads = jax.vmap(jax.value_and_grad(penalised, has_aux=True))(M)
+        return values, grads, strains
 
     optimizer = optax.adam(learning_rate)
+
+    @filter_jit
+    def update(Z, grads, state):
+        s = jax.nn.sigmoid(Z)
+        updates, state = jax.vmap(optimizer.update)(grads * span * s * (1 - s), state, Z)
+        return optax.apply_updates(Z, updates), state
+
+    def strains(layouts):
+        """The strain of each layout, `starts` at a time (the shape `evaluate` compiled for)."""
+        out = []
+        for i in range(0, layouts.shape[0], starts):
+            part = layouts[i:i + starts]
+            fill = jnp.broadcast_to(part[:1], (starts - part.shape[0],) + part.shape[1:])
+            out.append(evaluate(jnp.concatenate([part, fill]))[2][:part.shape[0]])
+        return jnp.concatenate(out)
+
     key = jax.random.PRNGKey(0) if key is None else key
     others = jax.random.uniform(key, (starts - 1,) + z0.shape, minval=-2.5, maxval=2.5) * (span > 0)
     Z = jnp.concatenate([z0[None], others])
-
-    @filter_jit
-    def step(Z, state):
-        values, grads = jax.vmap(jax.value_and_grad(f))(Z)
-        updates, state = jax.vmap(optimizer.update)(grads, state, Z)
-        return optax.apply_updates(Z, updates), state, values
-
     state = jax.vmap(optimizer.init)(Z)
     best_z, best_v, history = Z, jnp.full((starts,), jnp.inf), []
     for _ in tqdm(range(steps), desc="optimize_mounts", disable=not progress, leave=False):
-        Z_new, state, values = step(Z, state)
+        values, grads, _ = evaluate(mounts_of(Z))
         improved = jnp.isfinite(values) & (values < best_v)  # a flagged (NaN) step is never the best
         best_v, best_z = jnp.where(improved, values, best_v), jnp.where(improved[:, None, None], Z, best_z)
         history.append(values)
-        Z = Z_new
-    final = filter_jit(jax.vmap(f))(Z)
+        Z, state = update(Z, grads, state)
+    final = evaluate(mounts_of(Z))[0]
     improved = jnp.isfinite(final) & (final < best_v)
     best_v, best_z = jnp.where(improved, final, best_v), jnp.where(improved[:, None, None], Z, best_z)
     winner = int(jnp.argmin(best_v))
     histories = jnp.stack(history, axis=1)
     best = mounts_of(best_z[winner])
     # What the user reads is the strain of the layout returned and of the scene's own, not the penalised objective.
-    value, initial = filter_jit(jax.vmap(strain_at))(jnp.stack([best, scene.board.mounts]))
+    value, initial = strains(jnp.stack([best, jnp.asarray(scene.board.mounts, best.dtype)]))
     d = jnp.sqrt(jnp.sum((best[:, None] - best[None]) ** 2, axis=-1))
     spacing = jnp.min(jnp.where(jnp.eye(best.shape[0], dtype=bool), jnp.inf, d)) if best.shape[0] > 1 else jnp.inf
     tail = np.asarray(histories[winner])[-max(2, steps // 5):]

@@ -345,7 +345,8 @@ def optimize_placement(
         history.append(values)
         U = U_new
         path_u.append(U)
-    best_u, best_v = _keep_best(U, _values(U, scene, batches, config), best_u, best_v)
+    # The last variables' values from the step's own program (its update unused): no second compilation.
+    best_u, best_v = _keep_best(U, _step(U, state, scene, batches, optimizer, config)[2], best_u, best_v)
     placement, value, initial, histories, winners, path = _finish(scene, best_u, best_v, history, path_u, config)
     along_before, along_after = _along_board_jumps(drops, jnp.stack([_params(scene.placement), _params(placement)]),
                                                    numerics.law)
@@ -458,11 +459,6 @@ def _step(U, state, scene, drops, optimizer, config):
     import optax
 
     return optax.apply_updates(U, updates), state, values
-
-
-@filter_jit
-def _values(U, scene, drops, config):
-    return jax.vmap(placement_objective(scene, drops, *config))(U)
 
 
 def _params(p: Placement):
