@@ -161,7 +161,9 @@ def memory_rate(e, d, dmax, d_rate, friction_stiffness):
     compressing = jnp.where(follow & (d > 0.0), 1.0, 0.0)
     relaxing = (jnp.where(forget, jnp.clip((dmax - d) / _NU_WARP, 0.0, 1.0), 0.0)
                 + jnp.where(released, jnp.clip(gap / _NU_WARP, 0.0, 1.0), 0.0))
-    Lambda = friction_stiffness + _FORGET_RATE * jnp.sum(relaxing + compressing)
+    # Each corner's memory relaxes on its own (its rate depends on its own d alone): the stiffest of them bounds the
+    # explicit step, not their sum (which cost 17 % more steps on a near-flat landing of two corners).
+    Lambda = friction_stiffness + _FORGET_RATE * jnp.max(relaxing + compressing)
     warp = 1.0 / (1.0 + Lambda / _LAMBDA0)
     memory = dmax - d
     heal = -_FORGET_RATE * (memory - jax.lax.stop_gradient(memory))
