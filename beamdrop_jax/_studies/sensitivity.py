@@ -73,7 +73,10 @@ def sensitivities(scene: Scene, numerics: Numerics | None = None, quantity: str 
         raise ValueError(f"quantity = {quantity!r}; valid: {', '.join(_PEAKS)}")
     peak_fn = _PEAKS[quantity]
     numerics = Numerics() if numerics is None else numerics
-    peak, grad = filter_jit(jax.value_and_grad(lambda s: peak_fn(s, numerics)))(scene)
+    # Eager: the peak's derivative rule then sees the scene's values, takes the drop's own landing path and runs one
+    # compiled program, kept for later calls (under a `jit` of its own the scene is traced, so `"auto"` would trace
+    # and compile both landing paths, every call).
+    peak, grad = jax.value_and_grad(lambda s: peak_fn(s, numerics))(scene)
     grads = dict(scalar_fields(grad))
     peak = float(peak)
     rows = [Sensitivity(name, value, grads[name], value * grads[name] / peak if (peak and value != 0.0) else None,
