@@ -399,7 +399,8 @@ def test_mirror_image_drops_are_solved_once_in_the_orientation_table(monkeypatch
     horizontal speed: the drops at theta, -theta, pi - theta and pi + theta are mirror images of each other (mirrors
     in the vertical plane, the housing flipped over an axis), so the orientation table solves one of each four
     nodes (101 of the default scene's 404). Reference: every node solved directly (the landing then takes the
-    corners in other orders): within 1e-8 (1.3e-9 measured) near three faces."""
+    corners in other orders): within 10 times the table solves' tolerance (1e-6; 2.8e-7 measured) near three
+    faces; a wrong image is off by a factor (the side's peak is a fifth of the bottom's)."""
     from beamdrop_jax._studies import montecarlo as mc
 
     scene, n = bd.Scene.default(), mc._node_count()
@@ -413,11 +414,12 @@ def test_mirror_image_drops_are_solved_once_in_the_orientation_table(monkeypatch
 
     monkeypatch.setattr(mc, "solve_landings", spy)
     table = mc.orientation_table(scene, nodes)
+    rtol = 10 * mc.TABLE_NUMERICS.landing_tolerance
     np.testing.assert_allclose(solved[0], np.array([10, 1795]) * mc.ORIENTATION_STEP)  # 2 of 8
     samples = eqx.tree_at(lambda s: s.drop.orientation, scene, jnp.asarray(nodes * mc.ORIENTATION_STEP))
     direct = solve(samples, mc.sample_axes(samples, scene), np.arange(nodes.size), False, mc.TABLE_NUMERICS)
     for found, expected in zip(table.values[:3], direct[:3]):
-        np.testing.assert_allclose(found, expected, rtol=1e-8)
+        np.testing.assert_allclose(found, expected, rtol=rtol)
     assert not np.any(direct[3])
     counts = [np.unique(mc._representatives(s, mc._orientation_nodes(scene))).size for s in (
         scene, scene.replace(**{"placement.centre": jnp.array([0.0, 5e-3])}))]
@@ -431,7 +433,7 @@ def test_mirror_image_drops_are_solved_once_in_the_orientation_table(monkeypatch
     flip = np.array([10, n // 2 - 10])
     samples = eqx.tree_at(lambda s: s.drop.orientation, unlike, jnp.asarray(flip * mc.ORIENTATION_STEP))
     found = np.stack(solve(samples, mc.sample_axes(samples, unlike), np.arange(2), False, mc.TABLE_NUMERICS)[:3])
-    np.testing.assert_allclose(found[:, 0], found[:, 1], rtol=1e-8)
+    np.testing.assert_allclose(found[:, 0], found[:, 1], rtol=rtol)
     assert mc._mirrors(unlike) == ("y",)
     assert mc._mirrors(scene.replace(**{"placement.centre": jnp.array([0.0, 1e-3])})) == ("x",)
     for name, value in (("placement.angle", 0.01), ("drop.spin", 1.0), ("drop.horizontal_speed", 0.1)):
@@ -441,7 +443,7 @@ def test_mirror_image_drops_are_solved_once_in_the_orientation_table(monkeypatch
     quad = np.array([10, n - 10, n // 2 - 10, n // 2 + 10])
     samples = eqx.tree_at(lambda s: s.drop.orientation, box, jnp.asarray(quad * mc.ORIENTATION_STEP))
     found = np.stack(solve(samples, mc.sample_axes(samples, box), np.arange(4), False, mc.TABLE_NUMERICS)[:3])
-    np.testing.assert_allclose(found, np.repeat(found[:, :1], 4, axis=1), rtol=1e-8)
+    np.testing.assert_allclose(found, np.repeat(found[:, :1], 4, axis=1), rtol=rtol)
     assert mc._mirrors(box) == ("x", "y") and not any(mc._mirrors(box.replace(**{f"drop.{name}": 0.01}))
                                                      for name in ("tilt", "side_speed", "spin_x", "spin_y"))
 

@@ -628,11 +628,12 @@ def _representatives(scene: Scene, nodes) -> np.ndarray:
     return np.min(images, axis=0)
 
 
-TABLE_NUMERICS = Numerics(landing_steps=FIRST_LANDING_STEPS, landing_tolerance=1e-8)
-"""The first solve of `orientation_table`'s nodes: its landings at a tolerance of 1e-8 (`simulate`'s: 1e-10) moved
-the default scene's 404 nodes' peaks by at most 2.6e-7 of the largest (the table's linear interpolation errs by up
-to 5e-3), in fewer steps (the JESD22 plate's 416 nodes: 4500 to 7600, against 5500 to 10,900): a node cost 13 ms
-on the default beam against 17 at 1e-10."""
+TABLE_NUMERICS = Numerics(landing_steps=FIRST_LANDING_STEPS, landing_tolerance=1e-6)
+"""The first solve of `orientation_table`'s nodes: its landings at a tolerance of 1e-6 (`simulate`'s: 1e-10) moved
+the nodes' peaks by at most 2.5e-5 (default beam, 404 nodes) and 1e-4 (JESD22 plate, 416 nodes) of the largest,
+where the table's linear interpolation errs by up to 5e-3; the JESD22 plate's landings take 2500 to 3500 steps
+against 3600 to 6400 at 1e-8 and 5000 to 10,900 at 1e-10 (its 105 solves: 2.4 s against 3.4 s at 1e-8 on 2
+cores)."""
 
 
 def landing_weights(scene: Scene, n: int, key, distribution: "DropDistribution | None" = None):
