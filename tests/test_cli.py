@@ -882,7 +882,7 @@ def test_gauge_and_sensitivity_draw_figures_and_latency_writes_nothing(tmp_path,
 
 def test_a_plate_gauge_anywhere_from_the_command_line(tmp_path, capsys):
     """`--gauge X,Y` reads a gauge anywhere on a plate (mm from end A, and across from the centre line), the same
-    reading as `bd.simulate(..., gauges=...)`; on a beam a Y is refused in one line."""
+    reading as `bd.simulate(..., gauges=...)`; a gauge the board cannot read is refused in one line."""
     import beamdrop_jax as bd
 
     argv = ["drop", "--scene", "jesd22-board", "--gauge", "30,20", "--no-plots", "--json", "--out", str(tmp_path)]
@@ -893,9 +893,17 @@ def test_a_plate_gauge_anywhere_from_the_command_line(tmp_path, capsys):
     # The same reading to the round-off of two compiled programs (the peak time's Newton steps amplify it).
     np.testing.assert_allclose([g["peak_strain_microstrain"] for g in report["gauges"]],
                                np.asarray(res.gauges.peak_strain) * 1e6, rtol=1e-7)
-    assert main(["drop", "--gauge", "30,20", "--no-plots", "--out", str(tmp_path)]) == 2
-    err = [line for line in capsys.readouterr().err.splitlines() if "compiling" not in line]
-    assert len(err) == 1 and "a beam's gauge is X_MM alone" in err[0], err
+    # Gauges the board cannot read are refused in one line, before any word on compiling: a Y on a beam, a point
+    # off the plate or inside a screw's disc (6, 32.5 mm is a screw's centre), and the gauge an optimiser of the
+    # screws would minimise.
+    for argv, why in ((["drop", "--gauge", "30,20"], "a beam's gauge is X_MM alone"),
+                      (["drop", "--scene", "jesd22-board", "--gauge", "66,100"], "is off the plate"),
+                      (["drop", "--scene", "jesd22-board", "--gauge", "6,32.5"], "inside a mount's disc"),
+                      (["optimize", "--mounts", "--scene", "jesd22-board", "--gauge", "1000,0"],
+                       "off the board: valid [0, 132]")):
+        assert main(argv + ["--no-plots", "--out", str(tmp_path)]) == 2
+        err = capsys.readouterr().err.splitlines()
+        assert len(err) == 1 and why in err[0], err
 
 
 def test_optimize_moves_a_plates_screws_from_the_command_line(tmp_path, capsys):

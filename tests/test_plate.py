@@ -677,7 +677,7 @@ def test_default_gradients_of_a_screwed_board_match_central_differences():
 
 def test_mount_optimiser_reports_the_strain_it_returns_and_keeps_its_constraints():
     """The summary reads the strain of the layout returned and of the scene's own (not a penalised objective), a
-    spacing the boxes cannot give is refused, a start on a box's edge still moves, boxes are cut to where a screw's
+    spacing the boxes cannot give and a gauge off the plate are refused, a start on a box's edge still moves, boxes are cut to where a screw's
     disc stays on the plate, and the result says whether it converged and kept the spacing."""
     from beamdrop_jax._response.objectives import _scene_peaks
 
@@ -688,6 +688,8 @@ def test_mount_optimiser_reports_the_strain_it_returns_and_keeps_its_constraints
     numerics = bd.Numerics(n_modes=4)
     with pytest.raises(ValueError, match=r"min_spacing = 0\.2 m cannot be met: mounts 0 and 1 can be at most"):
         bd.optimize_mounts(scene, min_spacing=0.2, numerics=numerics, steps=1, starts=1, progress=False)
+    with pytest.raises(ValueError, match=r"gauges\[0\] = \(1, 0\) m is off the plate"):  # not optimised silently
+        bd.optimize_mounts(scene, gauges=((1.0, 0.0),), numerics=numerics, steps=1, starts=1, progress=False)
     region = np.stack([mounts, mounts], axis=1)
     region[0, :, 1] = (-0.0385, -0.0325)  # the first screw's y: its box reaches the edge, its start on the box's top
     res = bd.optimize_mounts(scene, region=region, min_spacing=0.01, numerics=numerics, steps=8, starts=1,

@@ -133,7 +133,8 @@ def optimize_mounts(
     - `region`: per mount a box ((x_lo, y_lo), (x_hi, y_hi)) (m) it stays in (one box for all, or one each);
       default anywhere on the plate. `min_spacing`: least distance between mounts (m; a penalty).
     - `gauges`: points ((x, y), ...) (m); the objective is then their largest peak reading, else the peak over the
-      plate (outside the mount discs).
+      plate (outside the mount discs). A gauge off the plate, not finite or inside a mount's disc at the start is
+      refused (`ValueError`, as `simulate` refuses it).
     - `orientations`, `heights`: the drops (default the scene's own drop), every orientation (rad) at every height
       (m); `tilts` (rad, a box housing's: one per orientation) makes each orientation an attitude in 3D;
       `objective`: `"mean"`, `"max"` or `"cvar"` (level `alpha`) over them.
@@ -154,6 +155,7 @@ def optimize_mounts(
     check_scene(scene)
     numerics = Numerics(n_modes=8) if numerics is None else numerics
     points = _gauge_points(gauges)
+    scene.board.check_gauges(points)  # a gauge off the plate would be optimised silently
     box = _region(scene.board, region)
     _check_spacing(box, float(min_spacing))
     box = jnp.asarray(box, dtype=float_dtype())

@@ -255,6 +255,9 @@ def _parse(argv) -> argparse.Namespace:
     if getattr(args, "face_bias", None) and args.orientations is not None:
         parser.commands[args.command].error("--face-bias draws the orientation over the whole circle: give it or "
                                             "--orientations, not both")
+    if args.command == "optimize" and not args.mounts and (args.gauge is not None or args.min_spacing):
+        parser.commands[args.command].error("--gauge and --min-spacing go with --mounts (moving a plate's screws); "
+                                            "placing the board takes --region and --max-angle")
     if getattr(args, "solver", None) and args.method != "diffrax":
         parser.commands[args.command].error(
             f"--solver {args.solver} needs --method diffrax (--method {args.method or 'closed_form'}"

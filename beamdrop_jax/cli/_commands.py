@@ -112,12 +112,6 @@ def cmd_drop(args, output):
     numerics = _numerics(args)
     gauge_x, gauge_y = args.gauge if args.gauge is not None else (None, None)
     plate = scene.board.SURFACE
-    if gauge_x is not None and not 0 <= gauge_x * 1e-3 <= float(scene.board.length):
-        raise ValueError(f"--gauge {gauge_x:g} mm is off the board: valid [0, {float(scene.board.length) * 1e3:g}] "
-                         "mm from end A")
-    if gauge_y is not None and not plate:
-        raise ValueError(f"--gauge {gauge_x:g},{gauge_y:g}: a beam's gauge is X_MM alone (it bends along x only); "
-                         "valid: --gauge X_MM")
     if plate:  # a gauge at the centre (where JESD22-B111 measures) and one at --gauge
         gauges = [(float(scene.board.length) / 2, 0.0)] + (
             [(gauge_x * 1e-3, (gauge_y or 0.0) * 1e-3)] if gauge_x is not None else [])
@@ -268,9 +262,6 @@ def cmd_optimize(args, output):
     numerics = _numerics(args, n_modes=args.n_modes or 8)
     if args.mounts:
         return _optimize_mounts(args, output, scene, orientations, numerics, tilts)
-    if args.gauge is not None or args.min_spacing:
-        raise ValueError("--gauge and --min-spacing go with --mounts (moving a plate's screws); placing the board "
-                         "takes --region and --max-angle")
     max_angle = None if args.max_angle is None else math.radians(args.max_angle)
     res = bd.optimize_placement(scene, orientations, args.heights, objective=args.objective, alpha=args.alpha,
                                 numerics=numerics, steps=args.steps, starts=args.starts, margin=args.margin * 1e-3,

@@ -277,7 +277,29 @@ def _scene(args):
         import equinox as eqx
 
         scene = eqx.tree_at(lambda s: s.board, scene, dataclasses.replace(scene.board, basis=tuple(args.basis)))
+    _check_gauge(getattr(args, "gauge", None), scene)
     return scene
+
+
+def _check_gauge(gauge, scene) -> None:
+    """--gauge X_MM[,Y_MM] against the scene's board: a clear error before anything compiles."""
+    if gauge is None:
+        return
+    import numpy as np
+
+    x, y = gauge
+    if not 0 <= x * 1e-3 <= float(scene.board.length):
+        raise ValueError(f"--gauge {x:g} mm is off the board: valid [0, {float(scene.board.length) * 1e3:g}] mm from "
+                         "end A")
+    if not scene.board.SURFACE:
+        if y is not None:
+            raise ValueError(f"--gauge {x:g},{y:g}: a beam's gauge is X_MM alone (it bends along x only); valid: "
+                             "--gauge X_MM")
+        return
+    try:
+        scene.board.check_gauges(np.array([[x, y or 0.0]]) * 1e-3)
+    except ValueError as error:
+        raise ValueError(f"--gauge {x:g},{y or 0.0:g} (mm): {error}") from None
 
 
 def eqx_replace_contact(scene, contact):
