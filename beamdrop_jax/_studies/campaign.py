@@ -149,9 +149,11 @@ class CampaignResult:
             mark = ((" <- worst (tie)" if ties else " <- worst") if r["worst"]
                     else ("  " + r["note"] if r["note"] else ""))
             verdict = "" if limit_strain is None else f" {verdicts[r['over_limit']]:>11}"
-            lines.append(f"  {r['drop']:>2}  {r['label']:<36} {r['height_m']:>10.3f} {r['orientation_deg']:>11.2f} "
-                         + (f"{r['tilt_deg']:>10.2f} " if box else "") + f"{r['repetitions']:>4} {r['peak_stress_MPa']:>12.2f} {r['peak_strain_microstrain']:>11.1f} "
-                         f"{r['peak_deflection_mm']:>10.3f}{verdict}{mark}")
+            lines.append(f"  {r['drop']:>2}  {r['label']:<36} {_cell(r['height_m'], 10, 3)} "
+                         f"{_cell(r['orientation_deg'], 11, 2)} " + (f"{_cell(r['tilt_deg'], 10, 2)} " if box else "")
+                         + f"{r['repetitions']:>4} {_cell(r['peak_stress_MPa'], 12, 2)} "
+                         f"{_cell(r['peak_strain_microstrain'], 11, 1)} {_cell(r['peak_deflection_mm'], 10, 3)}"
+                         f"{verdict}{mark}")
         return "\n".join(lines)
 
     def summary(self) -> dict:
@@ -169,6 +171,11 @@ class CampaignResult:
 
     def __repr__(self) -> str:
         return summary_text(self.summary(), "CampaignResult") + "\n" + self.table()
+
+
+def _cell(value, width: int, digits: int) -> str:
+    """A table cell: the number, or "-" where the drop has none (a prescribed pulse has no height or angle)."""
+    return f"{value:>{width}.{digits}f}" if value is not None and np.isfinite(value) else f"{'-':>{width}}"
 
 
 def campaign(scene, standard: str, numerics=None, *, mass: float | None = None, height: float | None = None):
