@@ -392,6 +392,11 @@ def test_near_flat_band_reads_a_table_over_orientation(monkeypatch):
     heights = dataclasses.replace(near, height=("uniform", 1.4, 1.6))
     with pytest.raises(ValueError, match="that takes 64 solves"):
         bd.montecarlo(scene, 64, key, heights, progress=False, max_landings=10)
+    with pytest.raises(ValueError, match=r"max_landings = -1; valid: an int >= 0"):
+        bd.montecarlo(scene, 64, key, heights, progress=False, max_landings=-1)
+    for nodes in ([-1], [7200], [1.5], []):  # node indices, not orientations
+        with pytest.raises(ValueError, match=r"valid: a non-empty list of ints in \[0, 7200\)"):
+            bd.orientation_table(scene, nodes)
 
 
 def test_mirror_image_drops_are_solved_once_in_the_orientation_table(monkeypatch):

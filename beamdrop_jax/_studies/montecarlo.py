@@ -307,6 +307,8 @@ def montecarlo(
     """
     if not (isinstance(n, (int, np.integer)) and n >= 1):
         raise ValueError(f"n = {n!r}; valid: an int >= 1")
+    if not (isinstance(max_landings, (int, np.integer)) and max_landings >= 0):
+        raise ValueError(f"max_landings = {max_landings!r}; valid: an int >= 0 (0: refuse any near-flat solve)")
     n = int(n)
     distribution = DropDistribution() if distribution is None else distribution
     if not isinstance(distribution, DropDistribution):
@@ -589,14 +591,25 @@ def _kept_table(scene: Scene, key: str, nodes, progress: bool) -> OrientationTab
 def orientation_table(scene: Scene, nodes=None, progress: bool = False) -> OrientationTable:
     """The near-flat band of a plane section's drops over orientation: peaks on the compliant landing's path
     (`simulate`'s, default numerics but `TABLE_NUMERICS`' tolerance) at orientations k `ORIENTATION_STEP` for k in
-    `nodes` (default: every node whose drop, or a neighbour's, lands nearly flat; 404 on the default scene). `montecarlo` uses it when
+    `nodes` (ints in [0, 7200), a full turn; default: every node whose drop, or a neighbour's, lands nearly flat;
+    404 on the default scene). `montecarlo` uses it when
     only the orientation varies and the band holds more drops than the table has nodes: within 1 % of each drop's
     own solve (tests/test_montecarlo.py). Of nodes whose drops are mirror images (`_mirrors`) one is solved."""
-    nodes = _orientation_nodes(scene) if nodes is None else np.asarray(nodes, dtype=int)
+    nodes = _orientation_nodes(scene) if nodes is None else _checked_nodes(nodes)
     solve, of_node = np.unique(_representatives(scene, nodes), return_inverse=True)
     samples = eqx.tree_at(lambda s: s.drop.orientation, scene, jnp.asarray(solve * ORIENTATION_STEP))
     values = solve_landings(samples, sample_axes(samples, scene), np.arange(solve.size), progress, TABLE_NUMERICS)
     return OrientationTable(nodes, tuple(np.asarray(v)[of_node] for v in values))
+
+
+def _checked_nodes(nodes) -> np.ndarray:
+    """`orientation_table`'s `nodes` as ints, or a `ValueError` naming what is not a node index."""
+    given, count = np.atleast_1d(np.asarray(nodes)), _node_count()
+    if given.ndim != 1 or given.size == 0 or not np.issubdtype(given.dtype, np.integer) or np.any(
+            (given < 0) | (given >= count)):
+        raise ValueError(f"nodes = {nodes!r}; valid: a non-empty list of ints in [0, {count}) (node k is the "
+                         f"orientation k * {math.degrees(ORIENTATION_STEP):g} deg)")
+    return given.astype(int)
 
 
 def _mirrors(scene: Scene) -> tuple[str, ...]:
