@@ -396,9 +396,16 @@ def test_readme_python_example_runs_and_prints(tmp_path):
 
 
 def test_optimizer_rejects_drops_outside_the_model_by_name():
+    """A drop the model cannot take, and a set of drops that is empty or not finite, are refused by name."""
     scene = bd.Scene.default().replace(**{"drop.spin": 1.0})
     with pytest.raises(ValueError, match=r"1 of 2 drops .*orientation 0 deg.*FLAT_LANDING_WITH_MOTION"):
         bd.optimize_placement(scene, orientations=[0.0, 0.5], steps=1, starts=1, progress=False)
+    # The drops a placement optimiser averages over: none, or one not finite, is refused by name.
+    for orientations, what in (([], "orientations is empty"), ([float("nan")], "orientations = \\[nan\\] rad")):
+        with pytest.raises(ValueError, match=what):
+            bd.drop_set(scene, orientations)
+    with pytest.raises(ValueError, match=r"heights = \[-1\.\] m is outside the valid range \[0, inf\) m"):
+        bd.drop_set(scene, [0.1], [-1.0])
 
 
 def test_extreme_magnitudes_are_flagged_never_silent():

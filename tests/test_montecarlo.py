@@ -286,6 +286,9 @@ def test_wilson_interval_reference_values():
     assert bd.wilson_interval(0, 10)[0] == 0.0 and bd.wilson_interval(10, 10)[1] == 1.0  # exact, no rounding residue
     np.testing.assert_allclose(bd.wilson_interval(0, 10), (0.0, 0.27753), atol=1e-5)
     np.testing.assert_allclose(bd.wilson_interval(5, 10), (0.23659, 0.76341), atol=1e-5)
+    for args, what in (((5, 3), "0 <= k <= n"), ((0.5, 3), "ints"), ((1, 3, 2.0), r"confidence = 2\.0; valid: \(0, 1\)")):
+        with pytest.raises(ValueError, match=what):
+            bd.wilson_interval(*args)
 
 
 def test_invalid_drops_are_counted_not_mixed():

@@ -38,7 +38,12 @@ _AHEAD = 2
 
 
 def wilson_interval(k, n, confidence=0.95) -> tuple[float, float]:
-    """Wilson score interval for a binomial proportion k/n."""
+    """Wilson score interval for a binomial proportion k/n (k of n drops exceed a limit) at `confidence`; with
+    n = 0, (0, 1): no information."""
+    if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (k, n)) or not 0 <= k <= n:
+        raise ValueError(f"k = {k!r}, n = {n!r}; valid: ints with 0 <= k <= n")
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence = {confidence!r}; valid: (0, 1), e.g. 0.95")
     if n == 0:
         return (0.0, 1.0)
     from statistics import NormalDist

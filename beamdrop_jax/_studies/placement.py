@@ -26,10 +26,10 @@ import numpy as np
 from jaxtyping import Array, Float
 from tqdm import tqdm
 
-from .._common.checks import float_dtype
+from .._common.checks import as_float, float_dtype
 from .._common.reductions import largest
 from .._common.checks import Flag, combine
-from .._scene.containers import Placement, Scene, board_ends, check_scene, scene_flags
+from .._scene.containers import Drop, Placement, Scene, board_ends, check_scene, scene_flags
 from .._response.numerics import Numerics
 from .._response.objectives import landing_batches, peak_stress
 from .._common.compile import filter_jit
@@ -182,18 +182,28 @@ def _traced_config(objective: str, alpha, numerics, margin=None, region=None, ma
 def drop_set(scene: Scene, orientations, heights=None, tilts=None) -> Scene:
     """A batch of scenes: every orientation (rad) with every height (m; default the scene's). `tilts` (rad, a box
     housing's; one per orientation) pairs with `orientations` into attitudes."""
-    th = jnp.asarray(orientations, dtype=float_dtype()).reshape(-1)
-    hs = jnp.asarray(scene.drop.height if heights is None else heights, dtype=float_dtype()).reshape(-1)
+    th = _drop_values(orientations, "orientations", "orientation")
+    hs = _drop_values(scene.drop.height if heights is None else heights, "heights", "height")
     if tilts is None:
         ti = jnp.broadcast_to(jnp.asarray(scene.drop.tilt, dtype=float_dtype()), th.shape)
     else:
         if not scene.housing.is_box:
             raise ValueError("tilts turn a box housing out of the plane of motion: give Housing.depth (m)")
-        ti = jnp.asarray(tilts, dtype=float_dtype()).reshape(-1)
+        ti = _drop_values(tilts, "tilts", "tilt")
         if ti.shape != th.shape:
             raise ValueError(f"tilts pair with orientations (one attitude each): got {ti.shape[0]} tilts for "
                              f"{th.shape[0]} orientations")
     return _drop_grid(scene, th, hs, ti)
+
+
+def _drop_values(values, name: str, field: str):
+    """`drop_set`'s values as a flat float array, or a `ValueError` naming `name` where a concrete one is empty, not
+    finite or outside the `Drop` field's range."""
+    out = as_float(values, name).reshape(-1)
+    if out.shape[0] == 0:
+        raise ValueError(f"{name} is empty; valid: at least one value")
+    Drop.RANGES[field][0].require(out, name)
+    return out
 
 
 @filter_jit  # one program, not one per operation and field
