@@ -98,6 +98,10 @@ def _not_converged(board, response: Response) -> str:
             + ", and ".join(fixes))
 
 
+LONGEST_CONTACT = 0.1
+"""A contact duration (s) beyond which `response_notes` asks whether it was meant in seconds."""
+
+
 def response_notes(scene: Scene, response: Response) -> list[str]:
     """What a reader of a drop's numbers should know: where the model's assumptions stop holding or the answer is
     not converged (an empty list when nothing needs saying)."""
@@ -109,6 +113,9 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
                      "(0.05-1 ms)")
     elif not bool(response.converged) and int(response.flags) == 0:
         notes.append(_not_converged(board, response))
+    if float(scene.contact.duration) > LONGEST_CONTACT:
+        notes.append(f"contact duration {float(scene.contact.duration):g} s: longer than a drop's contact lasts (about "
+                     "0.05 ms on metal to tens of ms on foam); Contact.duration is in seconds (5 ms is 0.005)")
     if int(response.flags) & Flag.SOLVER_FAILED and response.landing_weight is not None and float(
             response.landing_weight) > 0:
         notes.append("the compliant landing's solve reached its step limit (a nearly plastic contact or a long "
