@@ -423,9 +423,11 @@ def test_extreme_magnitudes_are_flagged_never_silent():
 def test_thesis_scene_says_its_units_are_not_physical(capsys):
     scene = bd.load_scene("thesis")
     notes = bd.response_notes(scene, bd.simulate(scene))
-    # A contact of 5 s (5 ms meant) is a note, not a silent answer.
+    # A contact of 5 s (5 ms meant) and a board of 1.85 kg/m^3 (g/cm^3 meant) are notes, not silent answers.
     long = bd.Scene.default().replace(**{"contact.duration": 5.0})
     assert any("contact duration 5 s" in n and "in seconds" in n for n in bd.response_notes(long, bd.simulate(long)))
+    light = bd.Scene.default().replace(**{"board.density": 1.85})  # g/cm^3 meant
+    assert any("board density 1.85 kg/m^3" in n for n in bd.response_notes(light, bd.simulate(light)))
     assert any("nondimensional" in n for n in notes) and any("ideal impulse" in n for n in notes)
     assert main(["drop", "--scene", "thesis", "--no-plots", "--no-cache"]) == 0
     assert "nondimensional" in capsys.readouterr().out

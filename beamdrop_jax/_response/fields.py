@@ -100,6 +100,8 @@ def _not_converged(board, response: Response) -> str:
 
 LONGEST_CONTACT = 0.1
 """A contact duration (s) beyond which `response_notes` asks whether it was meant in seconds."""
+LIGHTEST_BOARD = 100.0
+"""A board density (kg/m^3) below which `response_notes` asks whether it was meant in kg/m^3."""
 
 
 def response_notes(scene: Scene, response: Response) -> list[str]:
@@ -125,6 +127,9 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
         notes.append(f"the board is not an engineering board (E = {float(board.youngs_modulus):.4g} Pa, thickness "
                      f"{float(board.thickness):.4g} m): the thesis scene's nondimensional units, so stresses in MPa "
                      "and strains in microstrain mean nothing physical here")
+    elif float(board.density) < LIGHTEST_BOARD:
+        notes.append(f"board density {float(board.density):g} kg/m^3: lighter than any board material (about 1000 "
+                     "to 9000 kg/m^3); the field is in kg/m^3 (1.85 g/cm^3 is 1850)")
     elif float(peak.strain) > 0.01:
         notes.append(f"peak strain {float(peak.strain) * 100:.3g} % is beyond the elastic range of board materials")
     if float(peak.deflection) > float(board.thickness):
