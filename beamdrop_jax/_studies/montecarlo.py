@@ -20,7 +20,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, Bool, Float, Int
 from tqdm import tqdm
 
-from .._common.checks import Flag, float_dtype, is_concrete, is_pulse
+from .._common.checks import Flag, as_int, float_dtype, is_concrete, is_pulse
 from .._scene.containers import Scene, check_scene
 from .._response.numerics import Numerics
 from .._response.objectives import _scene_peaks
@@ -310,21 +310,9 @@ def montecarlo(
       lower bound that undershoots by the grid's resolution: by 2.3 % at the 1st percentile and at most 4.8 % over
       10,000 drops of five scenes, default numerics; stress and strain, and superposed deflections, are refined).
     """
-    if not (isinstance(n, (int, np.integer)) and n >= 1):
-        raise ValueError(f"n = {n!r}; valid: an int >= 1")
-    if not (isinstance(max_landings, (int, np.integer)) and max_landings >= 0):
-        raise ValueError(f"max_landings = {max_landings!r}; valid: an int >= 0 (0: refuse any near-flat solve)")
-    n = int(n)
-    distribution = DropDistribution() if distribution is None else distribution
-    if not isinstance(distribution, DropDistribution):
-        raise ValueError(f"distribution must be a DropDistribution, got {type(distribution).__name__}")
-    if not distribution.varied():
-        raise ValueError("DropDistribution varies no field: every drop would be the same (use simulate for one drop)")
-    check_scene(scene)
-    box_only = [name for name in list(_FIELDS)[_PLANE_FIELDS:] if getattr(distribution, name) is not None]
-    if box_only and not scene.housing.is_box:
-        raise ValueError(f"DropDistribution.{box_only[0]} varies a box housing's drop out of the plane: give "
-                         f"Housing.depth (m), or leave {', '.join(box_only)} out for the plane section")
+    n = as_int(n, "n", 1)
+    as_int(max_landings, "max_landings", 0)
+    distribution, box_only = _checked_distribution(scene, distribution)
     samples = distribution.sample(scene, n, key)
     durations = None  # the table's span of contact durations, when they vary
     cannot = superposes(Numerics() if numerics is None else numerics, scene.board)
@@ -409,6 +397,22 @@ def montecarlo(
     # `device_put`, not `jnp.asarray`: 1.2 against 5.3 ms for an 8 MB array.
     stress, strain, deflection, flags, valid = jax.device_put(outputs + [outputs[3] == Flag.OK])
     return MonteCarloResult(samples, stress, strain, deflection, flags, valid, jax.device_put(weight))
+
+
+def _checked_distribution(scene: Scene, distribution) -> tuple["DropDistribution", list[str]]:
+    """`montecarlo`'s distribution (default `DropDistribution()`), checked against the scene (which is checked), and
+    the fields it varies that only a box has."""
+    distribution = DropDistribution() if distribution is None else distribution
+    if not isinstance(distribution, DropDistribution):
+        raise ValueError(f"distribution must be a DropDistribution, got {type(distribution).__name__}")
+    if not distribution.varied():
+        raise ValueError("DropDistribution varies no field: every drop would be the same (use simulate for one drop)")
+    check_scene(scene)
+    box_only = [name for name in list(_FIELDS)[_PLANE_FIELDS:] if getattr(distribution, name) is not None]
+    if box_only and not scene.housing.is_box:
+        raise ValueError(f"DropDistribution.{box_only[0]} varies a box housing's drop out of the plane: give "
+                         f"Housing.depth (m), or leave {', '.join(box_only)} out for the plane section")
+    return distribution, box_only
 
 
 def _from_rest(scene: Scene, samples: Scene) -> bool:
