@@ -19,8 +19,8 @@ SMALL = {
     "08_plates_and_mounts.ipynb": "BASIS = (8, 6)\nEDGES = (\"SFSF\", \"FFFF + 4 screws\")\nSTEPS = 2\nSTARTS = 1",
     "10_landings.ipynb": "N_ANGLES = 3\nWRITE_FIGURES = False",
     "11_box_drops.ipynb": "N_TILTS = 5\nWRITE_FIGURES = False",
-    "09_validation.ipynb": "N_THETA = 41\nFE_ELEMENTS = (20, 40)\nFE_STEPS_US = (4.0, 2.0)\nPLATE_MESHES_MM = (6.0,)\n"
-                           "PLATE_STEPS_US = (10.0,)",
+    "09_validation.ipynb": "N_THETA = 41\nFE_ELEMENTS = (20, 40)\nFE_STEPS_US = (4.0, 2.0)\nPLATE_MESHES_MM = (8.0,)\n"
+                           "PLATE_STEPS_US = (20.0,)",
 }
 
 
