@@ -80,13 +80,14 @@ HARD_DROPS = bd.DropDistribution(height=("uniform", 0.3, 2.0), spin=("uniform", 
 )
 def test_default_numerics_within_one_percent_of_converged(name, scene, distribution):
     """Both Monte-Carlo ways with their default numerics against 32 modes with the dense, refined search (a
-    converged modal series)."""
+    converged modal series), on 512 drops (largest errors measured: 6.6e-3, 6.8e-3 and 8.5e-3 by the direct
+    search; 1024 drops gave 6.6e-3, 7.7e-3 and 9.1e-3)."""
     key = jax.random.PRNGKey(7)
-    converged = bd.montecarlo(scene, 1024, key, distribution, bd.Numerics(n_modes=32), progress=False,
+    converged = bd.montecarlo(scene, 512, key, distribution, bd.Numerics(n_modes=32), progress=False,
                               superpose=False)
     assert converged.n_invalid == 0
     for superpose in (False, True):
-        lean = bd.montecarlo(scene, 1024, key, distribution, progress=False, superpose=superpose)
+        lean = bd.montecarlo(scene, 512, key, distribution, progress=False, superpose=superpose)
         assert lean.n_invalid == 0
         error = np.abs(np.asarray(lean.peak_stress) / np.asarray(converged.peak_stress) - 1)
         assert error.max() < 0.01, (name, superpose, error.max())
