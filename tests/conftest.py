@@ -55,30 +55,26 @@ jax.config.update("jax_enable_x64", True)
 # stacks taken with gdb). Set before the first computation, which creates the CPU client.
 jax.config.update("jax_cpu_enable_async_dispatch", False)
 
-# Test files by their time in a fresh-clone run on 2 cores (the largest first; files not named come after them).
-# Each test worker runs whole files, the largest first: a file's tests share the programs its first test traced and
-# compiled, which a worker that ran only some of them would trace and compile again.
-_LARGEST_FILES = ("test_cli.py", "test_plate.py", "test_montecarlo.py", "test_notebooks.py", "test_box_drops.py",
-                  "test_gradients.py", "test_clatter.py", "test_validation.py", "test_contact_models.py",
-                  "test_front_door.py", "test_fuzz.py", "test_board.py", "test_beam_ends.py", "test_simulate.py")
-
-
-def _file_rank(item) -> int:
-    name = item.nodeid.split("::", 1)[0].rsplit("/", 1)[-1]
-    return _LARGEST_FILES.index(name) if name in _LARGEST_FILES else len(_LARGEST_FILES)
+# The longest tests (30 s to 100 s each on 2 cores, mostly compiling) start first, so that the two test workers
+# share them instead of one finishing the run alone.
+_LONGEST = (
+    "test_cli.py::test_bench_tiny",
+    "test_notebooks.py::",
+    "test_montecarlo.py::test_chunks_and_devices",
+    "test_cli.py::test_montecarlo_and_optimize",
+    "test_montecarlo.py::test_default_numerics_within_one_percent",
+    "test_gradients.py::test_diffrax_gradient_equals_closed_form",
+    "test_gradients.py::test_optimizer_matches_grid_search",
+    "test_clatter.py::test_gradients_through_impact_times",
+    "test_beam_ends.py::test_superposed_montecarlo_on_an_asymmetric_board",
+    "test_plate.py::test_mount_",
+    "test_validation.py::test_plate_agrees_with_opensees",
+    "test_validation.py::test_held_out_shell_layouts",
+)
 
 
 def pytest_collection_modifyitems(config, items):
-    items.sort(key=_file_rank)  # stable: each file's tests keep their order
-
-
-@pytest.hookimpl(optionalhook=True)
-def pytest_xdist_make_scheduler(config, log):
-    """pytest-xdist hands out whole files, in the collection's order (the largest first, see `_LARGEST_FILES`)."""
-    from xdist.scheduler import LoadFileScheduling
-
-    config.option.loadscopereorder = False
-    return LoadFileScheduling(config, log)
+    items.sort(key=lambda item: not any(name in item.nodeid for name in _LONGEST))
 
 
 _RSS_LIMIT = 4 * 2**30  # bytes per test worker
