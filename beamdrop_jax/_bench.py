@@ -388,7 +388,8 @@ def box_bench(repeats: int = 3, n_drops: int = 1 << 20) -> dict:
 
 
 def _board_benches(quick: bool, progress: bool) -> tuple[dict, dict]:
-    """`plate_bench`, `landing_bench` (the full level only: its table takes half a minute) and `box_bench`, each printed as
+    """`plate_bench`, `landing_bench` (the full level only, on the default beam, that beam off centre and the JESD22
+    plate on `"auto"`: their tables take half a minute to a minute) and `box_bench`, each printed as
     it finishes with `progress`."""
     plates = plate_bench(repeats=5 if quick else 9)
     if progress:
@@ -396,7 +397,10 @@ def _board_benches(quick: bool, progress: bool) -> tuple[dict, dict]:
     if not quick:
         off = Scene.default().replace(**{"placement.centre": OFF_CENTRE})
         label = f"default beam moved to ({1e3 * OFF_CENTRE[0]:g}, {1e3 * OFF_CENTRE[1]:g}) mm (no mirror images)"
-        for name, scene, text in (("landing", None, "default beam"), ("landing_off_centre", off, label)):
+        jesd22 = load_scene("jesd22-board")
+        jesd22 = eqx.tree_at(lambda s: s.contact, jesd22, jesd22.contact.with_model("auto"))
+        for name, scene, text in (("landing", None, "default beam"), ("landing_off_centre", off, label),
+                                  ("landing_jesd22", jesd22, "jesd22-board plate on 4 screws")):
             plates.update(landing_bench(scene=scene, name=name))
             if progress:
                 _print_landings(plates, name, text)

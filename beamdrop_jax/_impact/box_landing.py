@@ -232,19 +232,20 @@ def _box_model(W, H, D, m, moments, mu, e, tau, orientation, tilt, v, w, g, v_ep
 
 
 def box_landing(W, H, D, m, moments, mu, e, tau, orientation, tilt, v, w, g, v_eps, t_max, *, rtol: float = 1e-10,
-                atol: float = 1e-10, max_steps: int = 32768, through: bool = False) -> BoxLanding:
+                atol: float = 1e-10, max_steps: int = 32768, through: bool = False, kinks: bool = True) -> BoxLanding:
     """The compliant landing of a `W` x `H` x `D` box (m) of mass `m` (kg) and principal moments `moments` (3,)
     (kg m^2) from the first touch: its lowest vertex at y = 0, attitude Rx(`tilt`) Rz(`orientation`), G moving at
     `v` (3,) m/s and spinning at `w` (3,) rad/s (ground frame); contact friction `mu`, restitution `e`, duration
     `tau` (s); gravity `g` (m/s^2); `v_eps` the friction's regularising speed (NaN: 1e-3 V); `t_max` the time
-    bound (s; NaN: 10 tau), or with `through` the time to integrate to, through every strike. Arrays in, a
-    `BoxLanding` out; traceable (problems come back as `flags`)."""
+    bound (s; NaN: 10 tau), or with `through` the time to integrate to, through every strike; `kinks=False`: the
+    step controller steps across the contacts' kinks (`landing.CLOCK_ATOL`). Arrays in, a `BoxLanding` out;
+    traceable (problems come back as `flags`)."""
     model, q0, Rot = _box_model(W, H, D, m, moments, mu, e, tau, orientation, tilt, v, w, g, v_eps)
     w_body = Rot.T @ w * model.R / model.V
     y_init = jnp.concatenate([jnp.zeros(3), v / model.V, q0, w_body, -model.h0, -model.h0,
                               jnp.zeros(3 * _N + 2 * _N + 1)])
     sol, y_end, failed, separated = _solve(model, y_init, _T3, t_max, rtol=rtol, atol=atol, max_steps=max_steps,
-                                           through=through)
+                                           through=through, clocks=None if kinks else slice(_TC, _T3))
     P = y_end[_P:_TC].reshape(_N, 3) * m * model.V
     v_end = y_end[3:6] * model.V
     w_body_end = y_end[10:13] * model.V / model.R

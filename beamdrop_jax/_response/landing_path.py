@@ -199,21 +199,23 @@ def _velocity(scene: Scene):
     return jnp.stack([d.horizontal_speed, -jnp.sqrt(2.0 * GRAVITY * jnp.maximum(d.height, 0.0))])
 
 
-def scene_landing(scene: Scene, window, max_steps: int = 16384, tolerance: float = 1e-10) -> Landing | BoxLanding:
+def scene_landing(scene: Scene, window, max_steps: int = 16384, tolerance: float = 1e-10,
+                  kinks: bool = True) -> Landing | BoxLanding:
     """The compliant landing of a drop, integrated from the first touch to `window` (s) through every strike: the
     plane section's (`Landing`) or a box's (`BoxLanding`). `max_steps`: the solve's step limit (the buffer of
     the states it keeps at each step; `FIRST_LANDING_STEPS`); beyond it the drop is flagged
-    `SOLVER_FAILED`. `tolerance`: the step controller's rtol and atol on the nondimensional state."""
+    `SOLVER_FAILED`. `tolerance`: the step controller's rtol and atol on the nondimensional state; `kinks=False`:
+    it steps across the contacts' kinks (`Numerics.landing_kinks`)."""
     h, c, d = scene.housing, scene.contact, scene.drop
     nan = jnp.asarray(jnp.nan, dtype=jnp.result_type(float))
     if h.is_box:
         return box_landing(h.width, h.height, h.depth, h.mass, h.moments, c.friction, c.restitution, c.duration,
                            d.orientation, d.tilt, d.velocity(), d.angular_velocity(),
                            jnp.asarray(GRAVITY, dtype=nan.dtype), nan, window, rtol=tolerance, atol=tolerance,
-                           max_steps=max_steps, through=True)
+                           max_steps=max_steps, through=True, kinks=kinks)
     return _landing(h.width, h.height, h.mass, h.inertia, c.friction, c.restitution, c.duration, d.orientation,
                     _velocity(scene), d.spin, jnp.asarray(GRAVITY, dtype=nan.dtype), nan, window, rtol=tolerance,
-                    atol=tolerance, max_steps=max_steps, through=True)
+                    atol=tolerance, max_steps=max_steps, through=True, kinks=kinks)
 
 
 def landing_motion(scene: Scene, numerics: Numerics, weight, rigid_jumps,
@@ -221,7 +223,7 @@ def landing_motion(scene: Scene, numerics: Numerics, weight, rigid_jumps,
     """The supports' normal acceleration through the compliant landing (`weight` of it, blended with the rigid
     law's half-sine of jumps `rigid_jumps`), sampled on the peak window, and the `Landing`."""
     window = landing_window(scene, numerics)
-    landing = scene_landing(scene, window, numerics.landing_steps, numerics.landing_tolerance)
+    landing = scene_landing(scene, window, numerics.landing_steps, numerics.landing_tolerance, numerics.landing_kinks)
     t = jnp.linspace(0.0, 1.0, samples) * window
     if scene.housing.is_box:
         return _box_landing_motion(scene, numerics, weight, rigid_jumps, landing, t, window)

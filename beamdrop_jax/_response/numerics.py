@@ -55,7 +55,10 @@ class Numerics(eqx.Module):
       the embedded scenes took 1000 to 10,900 steps, a nearly plastic contact (restitution 0.02) 15,000.
       A landing that needs more is flagged `Flag.SOLVER_FAILED`; raise it then. `landing_tolerance`: its step
       controller's rtol and atol on the nondimensional state (tight: the gradients through the landing follow
-      the solver's steps).
+      the solver's steps). `landing_kinks`: the step controller closes in on each contact's kinks (where it starts,
+      turns from loading to unloading, or ends; derivatives through the landing need it); False steps across them:
+      19 % fewer steps on the JESD22 plate's near-flat landings at a tolerance of 1e-6 (the orientation tables'),
+      peaks within 2.1e-4 of the largest from `simulate`'s, and derivatives that are not the landing's.
     """
 
     method: str = eqx.field(static=True, default="closed_form")
@@ -82,6 +85,7 @@ class Numerics(eqx.Module):
     from_rest: bool = eqx.field(static=True, default=False)
     landing_steps: int = eqx.field(static=True, default=16384)
     landing_tolerance: float = eqx.field(static=True, default=1e-10)
+    landing_kinks: bool = eqx.field(static=True, default=True)
 
     def __check_init__(self):
         def bad(field, value, valid):
@@ -90,7 +94,8 @@ class Numerics(eqx.Module):
         for name, choices in (("method", METHODS), ("solver", SOLVERS), ("law", LAWS)):
             if not (isinstance(getattr(self, name), str) and getattr(self, name) in choices):
                 bad(name, getattr(self, name), ", ".join(choices))
-        for name, flag in (("refine", self.refine), ("stretching", self.stretching)):
+        for name, flag in (("refine", self.refine), ("stretching", self.stretching),
+                           ("landing_kinks", self.landing_kinks)):
             if not isinstance(flag, bool):
                 bad(name, flag, "True or False")
         if self.n_modes is not None:

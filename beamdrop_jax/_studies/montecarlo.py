@@ -650,12 +650,13 @@ def _representatives(scene: Scene, nodes) -> np.ndarray:
     return np.min(images, axis=0)
 
 
-TABLE_NUMERICS = Numerics(landing_steps=FIRST_LANDING_STEPS, landing_tolerance=1e-6)
-"""The first solve of `orientation_table`'s nodes: its landings at a tolerance of 1e-6 (`simulate`'s: 1e-10) moved
-the nodes' peaks by at most 2.5e-5 (default beam, 404 nodes) and 1e-4 (JESD22 plate, 416 nodes) of the largest,
-where the table's linear interpolation errs by up to 5e-3; the JESD22 plate's landings take 2500 to 3500 steps
-against 3600 to 6400 at 1e-8 and 5000 to 10,900 at 1e-10 (its 105 solves: 2.4 s against 3.4 s at 1e-8 on 2
-cores)."""
+TABLE_NUMERICS = Numerics(landing_steps=FIRST_LANDING_STEPS, landing_tolerance=1e-6, landing_kinks=False)
+"""The first solve of `orientation_table`'s nodes: its landings at a tolerance of 1e-6 (`simulate`'s: 1e-10),
+stepping across the contacts' kinks (`Numerics.landing_kinks`: the table is read for values, not derivatives).
+On the JESD22 plate's 105 solves (416 nodes; 2 cores) that took 2470 steps on average against 3060 with the kinks
+closed in on (2.35 s against 2.97 s), and moved the nodes' peaks by at most 2.1e-4 of the largest from solves at 1e-10
+(1.0e-4 with the kinks); on the default beam (102 solves, 404 nodes) 4.0e-5 (2.5e-5), in as many steps. The table's
+linear interpolation errs by up to 5e-3."""
 
 
 def landing_weights(scene: Scene, n: int, key, distribution: "DropDistribution | None" = None):
