@@ -107,6 +107,7 @@ from ._studies.distribution import DropDistribution as DropDistribution
 from ._studies.montecarlo import (
     MonteCarloResult as MonteCarloResult,
     OrientationTable as OrientationTable,
+    forget_tables as forget_tables,
     montecarlo as montecarlo,
     montecarlo_numerics as montecarlo_numerics,
     orientation_table as orientation_table,

@@ -371,6 +371,9 @@ def test_near_flat_band_reads_a_table_over_orientation(monkeypatch):
 
     monkeypatch.setattr(mc, "orientation_table", spy)
     monkeypatch.setattr(mc, "_TABLES", type(mc._TABLES)())  # nothing kept from other tests
+    monkeypatch.setattr(mc, "_SUPERPOSED", type(mc._SUPERPOSED)())
+    builds, build = [], mc.superposition_table
+    monkeypatch.setattr(mc, "superposition_table", lambda *a, **k: builds.append(1) or build(*a, **k))
     scene, key = bd.Scene.default(), jax.random.PRNGKey(5)
     near = bd.DropDistribution(orientation=("uniform", math.radians(0.5), math.radians(2.0)))
     res = bd.montecarlo(scene, 64, key, near, progress=False)
@@ -380,10 +383,12 @@ def test_near_flat_band_reads_a_table_over_orientation(monkeypatch):
     for found, expected in zip((res.peak_stress, res.peak_strain, res.peak_deflection), direct[:3]):
         np.testing.assert_allclose(np.asarray(found)[first], expected, rtol=5e-3)
     assert not np.any(np.asarray(res.flags)) and not np.any(direct[3])
-    # Another run on the scene solves no node it keeps, and answers the same.
+    # Another run on the scene solves no node it keeps, builds no superposition table, and answers the same.
     again = bd.montecarlo(scene, 64, key, near, progress=False)
-    assert len(tables) == 1
+    assert len(tables) == 1 and len(builds) == 1
     np.testing.assert_array_equal(np.asarray(again.peak_strain), np.asarray(res.peak_strain))
+    mc.forget_tables()
+    assert not (mc._TABLES or mc._SUPERPOSED or mc._GRID_WEIGHTS)
     # Between nodes it has not solved, a table answers with a flag, never a number.
     far = tables[0].lookup(np.array([math.radians(10.0)]))
     assert np.isnan(far[0][0]) and far[3][0] == bd.Flag.OUTSIDE_TABLE
