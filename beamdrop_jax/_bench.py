@@ -190,10 +190,9 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
         add("closed_form f32", label, sec, vals)
     # Superposed: errors on the same drops; time per drop of whole `montecarlo` calls (table build, sampling and
     # transfers included) on many drops, the way it is used.
-    big = n if tiny else 2**20  # tiny: the error run's own program, timed again
+    big = n if tiny else 2**20  # tiny: the error run itself, timed (compilation included)
     whole_repeats = 1 if tiny else 7  # whole calls take ~0.1 s; their time varies by +-15 % from call to call
-    sup = montecarlo(scene, n, key, progress=False, superpose=True)
-    sec = _median_time(lambda: _whole_call(scene, big, key, progress=False, superpose=True), whole_repeats) / big
+    sec, sup = _whole_calls(tiny, whole_repeats, scene, n, big, key, progress=False, superpose=True)
     add("montecarlo superposed", f"table of {table_numerics(scene).n_modes} modes x 256 directions, "
         f"whole call, {big} drops", sec, sup.peak_stress)
 
@@ -203,9 +202,8 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
     varied_drops = varied.sample(scene, n, key)
     references[VARIED] = np.asarray(montecarlo(scene, n, key, varied, REFERENCE, progress=False,
                                                superpose=False).peak_stress)
-    sup = montecarlo(scene, n, key, varied, progress=False)
+    sec, sup = _whole_calls(tiny, whole_repeats, scene, n, big, key, varied, progress=False)
     varied_modes = table_numerics(scene, (2e-4, 1e-3)).n_modes
-    sec = _median_time(lambda: _whole_call(scene, big, key, varied, progress=False), whole_repeats) / big
     add("montecarlo superposed", f"table of {varied_modes} modes x 17 durations x 128 directions, whole call, "
         f"{big} drops", sec, sup.peak_stress, VARIED)
     durations = np.resize(np.asarray(varied_drops.contact.duration), tiled.size)
@@ -270,6 +268,17 @@ def run_bench(scene: Scene | None = None, level: str = "quick", out=None, n_drop
         with atomic_open(out / "bench.json") as f:
             f.write(json.dumps(dict(drops=n, rows=rows, stability=study, plates=plates, boxes=boxes), indent=1))
     return rows
+
+
+def _whole_calls(tiny, repeats, scene, n, big, *args, **kwargs):
+    """(seconds per drop of whole `montecarlo` calls on `big` drops, the result on `n` drops): the median of
+    `repeats` first calls after a warm-up; `tiny` (a smoke test, `big == n`): the one call, timed."""
+    if tiny:
+        start = time.perf_counter()
+        result = _whole_call(scene, n, *args, **kwargs)
+        return (time.perf_counter() - start) / n, result
+    result = montecarlo(scene, n, *args, **kwargs)
+    return _median_time(lambda: _whole_call(scene, big, *args, **kwargs), repeats) / big, result
 
 
 def _whole_call(*args, **kwargs):

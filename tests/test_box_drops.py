@@ -416,6 +416,7 @@ def test_plate_montecarlo_over_attitudes_uses_a_table_over_the_sphere():
     import jax.numpy as jnp
 
     from beamdrop_jax._response.superposition import table_numerics
+    from beamdrop_jax._studies import montecarlo as mc
     from beamdrop_jax._studies.montecarlo import evaluate_batch, sample_axes
 
     scene = eqx_contact(bd.load_scene("jesd22-board"), "rigid").replace(**{"housing.depth": 0.1})
@@ -425,7 +426,7 @@ def test_plate_montecarlo_over_attitudes_uses_a_table_over_the_sphere():
     reference = evaluate_batch(result.samples, sample_axes(result.samples, scene),
                                dataclasses.replace(dense, from_rest=True), False, 8)
     assert not np.any(np.asarray(reference[3]))
-    table = bd.superposition_table(scene, rolls=True)
+    table = mc._kept_superposition(scene, table_numerics(scene), None, True)  # `montecarlo`'s, kept: not built again
     assert table.rolls and table.mirrors == (True, True) and table.fields.shape[0] == 33 * 33
     jumps = jax.random.normal(jax.random.PRNGKey(7), (24, 3))
     found = np.asarray(jax.vmap(lambda j: table.peaks(scene.board, j))(jumps))

@@ -472,7 +472,8 @@ def test_landings_that_outgrow_the_first_step_limit_are_solved_again(monkeypatch
     """`solve_landings` and `simulate` solve a near-flat landing with a short step limit first (a smaller dense
     buffer) and again with `Numerics.landing_steps` where that is not enough. Nearly plastic near-flat landings
     (restitution 0.012 to 0.017, 4900 to 6100 steps) outgrow a first limit of 4096; an ordinary one does not. The
-    batch against `simulate` on each drop."""
+    batch against `simulate` on each drop, to 1e-8: the two are different compiled programs (a batch and one drop),
+    whose roundings differ by 1.6e-9 on some CPUs."""
     import beamdrop_jax._response.simulate as simulate_module
     from beamdrop_jax._studies import landings, montecarlo as mc
 
@@ -496,7 +497,7 @@ def test_landings_that_outgrow_the_first_step_limit_are_solved_again(monkeypatch
         assert float(res.landing_weight) > 0 and int(res.flags) == 0
         np.testing.assert_allclose([stress[i], strain[i], deflection[i]],
                                    [float(res.peak.stress), float(res.peak.strain), float(res.peak.deflection)],
-                                   rtol=1e-9)
+                                   rtol=1e-8)
     assert first[0][3] == stress[3]  # a landing within the first limit: the same solve
     # A limit the user sets is kept (a flag and NaN); a bad one is named.
     kept = bd.simulate(scenes[0], short)
