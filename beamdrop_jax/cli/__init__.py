@@ -229,7 +229,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "(no files)")
     level = p.add_mutually_exclusive_group()
     level.add_argument("--quick", action="store_true", help="the quick set (about 5 minutes on 2 cores)")
-    level.add_argument("--tiny", action="store_true", help="a smoke test of every part (seconds)")
+    level.add_argument("--tiny", action="store_true", help="a smoke test of every part (about a minute on 2 cores)")
     level.add_argument("--latency", action="store_true",
                        help="import, first drop and first gradient in fresh processes against a bare JAX process; "
                             "prints a table (with --json, an object) and writes no files")
