@@ -108,6 +108,13 @@ def test_bad_campaign_input_is_named():
         bd.campaign_drops(scene, "mil-std-810h-516-iv", mass=60.0)
     with pytest.raises(ValueError, match="height"):
         bd.campaign_drops(scene, "iec-60068-2-31", height=-1.0)
+    # A setting the standard does not take is refused, not ignored.
+    with pytest.raises(ValueError, match=r"height = 2.0 m: ista-1a fixes its drops .* give mass instead"):
+        bd.campaign_drops(scene, "ista-1a", height=2.0)
+    with pytest.raises(ValueError, match=r"mass = 3.0 kg: jesd22-b111's drops do not depend on the packaged mass"):
+        bd.campaign(scene, "jesd22-b111", mass=3.0)
+    with pytest.raises(ValueError, match=r"mass = 3.0 kg: iec-60068-2-31's"):
+        bd.campaign_drops(scene, "iec-60068-2-31", mass=3.0)
 
 
 def test_json_reports_drops_outside_the_plane_as_null(tmp_path, capsys):

@@ -704,3 +704,25 @@ def test_mount_optimiser_reports_the_strain_it_returns_and_keeps_its_constraints
     summary = res.summary()
     assert summary["objective"] == "mean peak strain over 1 drop" and "converged" in summary
     assert summary["after_microstrain"] == pytest.approx(float(res.value) * 1e6)
+
+
+def test_a_basis_with_fewer_functions_than_modes_is_refused_by_name():
+    """A 3 x 3 basis holds 9 functions, fewer than the 16 modes computed by default: an error naming Plate.basis
+    and the settings that fix it, eagerly and under jit (the sizes are static), not a broadcasting error."""
+    scene = bd.load_scene("jesd22-board")
+    small = eqx.tree_at(lambda s: s.board, scene, dataclasses.replace(scene.board, basis=(3, 3)))
+    for run in (bd.simulate, jax.jit(bd.peak_strain)):
+        with pytest.raises(ValueError, match=r"Plate.basis = \(3, 3\) holds 9 functions, fewer than the 16 modes "
+                                             r"computed .* --basis NX,NY"):
+            run(small)
+
+
+def test_a_note_on_a_fixed_mode_count_names_the_option_that_sets_it():
+    """With --n-modes the count is the user's and the check compares it with half as many: the note's fix is
+    --n-modes, not --max-modes (which argparse refuses beside --n-modes)."""
+    from beamdrop_jax.cli._helpers import _cli_note
+
+    note = "not converged: 2 modes change the peak by 11 % (against 5) (...); raise Numerics.max_modes"
+    assert _cli_note(note, bd.Numerics(n_modes=5)).endswith("raise --n-modes (now 5; the check compares it with half "
+                                                            "as many)")
+    assert "raise --max-modes (Numerics.max_modes, 16 here" in _cli_note(note, bd.Numerics())

@@ -424,6 +424,7 @@ class PlateModes(AbstractModal):
 
     def first(self, n_modes: int) -> "PlateModes":
         """The lowest `n_modes` of these modes (no new eigensolve)."""
+        _check_mode_count(self.plate, n_modes)
         return PlateModes(self.plate, self.omega2[:n_modes], self.coeffs[:, :n_modes])
 
     @property
@@ -460,7 +461,19 @@ class PlateModes(AbstractModal):
 
 def plate_modes(plate: Plate, n_modes: int) -> PlateModes:
     """The lowest n modes of a plate (one eigensolve; see `PlateModes`)."""
+    _check_mode_count(plate, n_modes)
     return PlateModes(plate, *_eigen(plate, n_modes))
+
+
+def _check_mode_count(plate: Plate, n_modes: int) -> None:
+    """A basis with fewer functions than the modes asked of it is a configuration error (static: raised under
+    `jit` too), named with the settings that fix it."""
+    nx, ny = plate.basis
+    if n_modes > nx * ny:
+        raise ValueError(f"Plate.basis = ({nx}, {ny}) holds {nx * ny} functions, fewer than the {n_modes} modes "
+                         f"computed (Numerics.max_modes or n_modes; 16 by default); valid: nx * ny >= {n_modes} "
+                         "(`basis = [nx, ny]` in the scene file's [plate], --basis NX,NY), or fewer modes "
+                         "(--max-modes, --n-modes)")
 
 
 def plate_frequencies(plate: Plate, n_modes: int) -> Float[Array, " n"]:

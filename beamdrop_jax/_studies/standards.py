@@ -125,6 +125,15 @@ def campaign_drops(scene, standard: str, *, mass: float | None = None, height: f
     leaves it to the specification (IEC 60068-2-31; default 1.0 m)."""
     if standard not in STANDARDS:
         raise ValueError(f"standard = {standard!r}; valid: {', '.join(STANDARDS)}")
+    # A setting the standard does not take would be ignored: refused by name instead.
+    if height is not None and not standard.startswith("iec"):
+        raise ValueError(f"height = {height!r} m: {standard} fixes its drops"
+                         + (" (half-sine pulses of the board)" if standard == "jesd22-b111" else
+                            " (their heights follow the packaged mass: give mass instead)")
+                         + "; valid: height with iec-60068-2-31 only, which leaves it to the specification")
+    if mass is not None and not standard.startswith(("ista", "mil")):
+        raise ValueError(f"mass = {mass!r} kg: {standard}'s drops do not depend on the packaged mass; valid: mass "
+                         "with ista-1a, ista-2a or mil-std-810h-516-iv (mass-dependent heights) only")
     W, H = float(scene.housing.width), float(scene.housing.height)
     mass = float(scene.housing.mass) if mass is None else float(mass)
     if standard == "jesd22-b111":

@@ -153,8 +153,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("optimize", "place the board (centre in mm, angle in deg) to minimise the peak stress (MPa) over a "
                             "set of drops; CSV history")
-    p.add_argument("--orientations", type=_degrees_list, default=_degrees_list("15:75:7"), metavar="DEG",
-                   help="drop angles in degrees: 'low:high:count' or 'a,b,c' (default 15:75:7)")
+    p.add_argument("--orientations", type=_degrees_list, metavar="DEG",
+                   help="drop angles in degrees: 'low:high:count' or 'a,b,c' (default 15:75:7; with --mounts the "
+                        "scene's own drop)")
     p.add_argument("--heights", type=_heights, metavar="M", help="drop heights in m, 'h1,h2' (default: the scene's)")
     p.add_argument("--tilts", type=_degrees_list, metavar="DEG",
                    help="a box housing's tilt out of the plane of motion for each orientation, deg, one per "

@@ -5,7 +5,7 @@ import json
 import math
 from pathlib import Path
 from .._studies.standards import STANDARDS
-from ._helpers import QUANTITIES, _cli_note, _numerics, _save, _scene, _scene_name, _tidy_positions
+from ._helpers import QUANTITIES, _cli_note, _degrees_list, _numerics, _save, _scene, _scene_name, _tidy_positions
 
 
 
@@ -251,11 +251,16 @@ def cmd_optimize(args, output):
     from .._common.report import write_csv
 
     scene = _scene(args)
-    orientations = np.radians(args.orientations)
+    # Screws are placed for the scene's own drop (a board-level test's, say), as `bd.optimize_mounts` does; the
+    # board's placement in a housing for a spread of drops.
+    given = args.orientations if args.orientations is not None or args.mounts else _degrees_list("15:75:7")
+    orientations = None if given is None else np.radians(given)
     tilts = None if args.tilts is None else np.radians(args.tilts)
     if tilts is not None and not scene.housing.is_box:
         raise ValueError("--tilts turns a box housing out of the plane of motion; this scene is a plane section (give "
                          "its [housing] a depth, or leave --tilts out)")
+    if tilts is not None and orientations is None:
+        raise ValueError("--tilts gives one tilt per orientation: give --orientations too")
     if tilts is not None and tilts.shape != orientations.shape:
         raise ValueError(f"--tilts gives one tilt per orientation: {tilts.size} tilts for {orientations.size} "
                          "orientations")

@@ -244,6 +244,9 @@ def _cli_note(note: str, numerics) -> str:
     """A library note (which names the Python API's fields) as the command line's user needs it: the option that
     does it, with the field in brackets."""
     n = numerics.max_modes or 16  # unset: the board's own (16 for the beam and the plate)
+    if numerics.n_modes is not None:  # --n-modes fixes the count (the check takes half as many): it is the fix
+        note = note.replace("raise Numerics.max_modes", f"raise --n-modes (now {numerics.n_modes}; the check "
+                                                         f"compares it with half as many)")
     for api, cli in (
         ("`basis = [nx, ny]` in the scene file's [plate], at most 40", "--basis NX,NY, or `basis = [nx, ny]` in the "
                                                                          "scene file's [plate]; at most 40"),
