@@ -97,6 +97,9 @@ def test_auto_is_continuous_through_a_flat_landing_on_a_plate():
 def test_contact_model_is_checked_and_round_trips(tmp_path):
     with pytest.raises(ValueError, match=r"Contact.model = 'rigd' \(did you mean 'rigid'\?\)"):
         bd.Contact(model="rigd")
+    # A misspelt path suggests the string field too (it suggested contact.friction).
+    with pytest.raises(ValueError, match=r"no scene field 'contact.modle'; did you mean 'contact.model'\?"):
+        bd.Scene.default().replace(**{"contact.modle": "auto"})
     with pytest.raises(ValueError, match="Contact.duration = 0 s with Contact.model = 'compliant'"):
         bd.Contact(duration=0.0, model="compliant")
     # A contact no longer than IMPULSE_DURATION is an impulse, not a landing (it ran out of steps, flagged wrongly).

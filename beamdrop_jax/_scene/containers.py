@@ -330,7 +330,8 @@ def _field_at(path: str, scene=None):
     import difflib
 
     classes = SECTIONS if scene is None else _section_classes(scene)
-    valid = [f"{section}.{name}" for section, cls in classes.items() for name in cls.RANGES]
+    # contact.model (a string, which `Scene.replace` takes apart from the numbers) is a path too.
+    valid = [f"{section}.{name}" for section, cls in classes.items() for name in cls.RANGES] + ["contact.model"]
     parts = path.split(".")
     if len(parts) != 2 or parts[0] not in classes or parts[1] not in classes[parts[0]].RANGES:
         close = difflib.get_close_matches(path, valid, n=1)
