@@ -631,6 +631,7 @@ def test_converged_means_the_gauges_agree_with_a_converged_run():
     gauges = ((0.066, 0.0), (0.03, 0.02))
     default = bd.board_response(plate, motion, gauges=gauges)
     assert not bool(default.converged) and float(default.error_estimate) > 1e-3
+    assert float(default.convergence.window) == 0.0  # no gauge reads more after the window
     # Both the modes (0.23 % at the centre) and the basis (1.4 %) are over the tolerance: one note names both
     # fixes, so that raising one does not meet the other only then.
     c = default.convergence
@@ -638,10 +639,12 @@ def test_converged_means_the_gauges_agree_with_a_converged_run():
     (note,) = [n for n in bd.response_notes(scene, default) if n.startswith("not converged")]
     assert "raise Plate.basis" in note and "raise Numerics.max_modes" in note, note
     # Point supports make the basis converge slowly: the centre moves 1.5e-4 from 20 to 24 functions each way and
-    # 1.3e-4 from 24 to 28, and 20 x 20 says (truthfully) that it is not converged.
-    enough = bd.Numerics(max_modes=48, frequency_growth=1)
+    # 1.3e-4 from 24 to 28, and 20 x 20 says (truthfully) that it is not converged. At 28 x 28 the estimate is
+    # 8.9e-4 and carries a noise of 2e-4: the check's 32 x 32 basis is ill-conditioned (its lowest eigenvalues move
+    # by 3e-4 between two compilations of the same program), hence a tolerance of 1.5e-3 here.
+    enough = bd.Numerics(max_modes=48, frequency_growth=1, convergence_rtol=1.5e-3)
     fine = bd.board_response(dataclasses.replace(plate, basis=(28, 28)), motion, enough, gauges=gauges)
-    assert bool(fine.converged) and float(fine.error_estimate) <= 1e-3
+    assert bool(fine.converged) and float(fine.error_estimate) <= 1.5e-3
     c = fine.convergence
     assert max(float(c.modes), float(c.gauges)) + float(c.basis) == pytest.approx(float(fine.error_estimate), rel=1e-12)
     rich = bd.board_response(dataclasses.replace(plate, basis=(36, 36)), motion,
@@ -652,6 +655,23 @@ def test_converged_means_the_gauges_agree_with_a_converged_run():
     assert not bool(coarse.converged) and coarse.convergence.worst()[0] == "basis"
     notes = bd.response_notes(scene, coarse)
     assert any("not converged: the Ritz basis's error" in n and "raise Plate.basis" in n for n in notes), notes
+
+
+def test_a_gauge_that_reads_more_after_the_peak_window_is_not_converged():
+    """A plate's modes are not harmonics: their beats can raise a gauge's strain after the default peak window (the
+    contact plus one fundamental period). A gauge between the phone board's screws reads 759 microstrain within it
+    and 851 over twice the window. The response says so (`Convergence.window`, 12 %, to the reference: a run over
+    twice the window, whose gauge peak is the larger) and names the fix; a gauge that reads less after it, 0."""
+    plate = bd.load_scene("phone").board
+    pulse, g = bd.HalfSine(3.0, 1.0, 5e-4), ((0.100, 0.010),)
+    narrow = bd.board_response(plate, pulse, gauges=g)
+    wide = bd.board_response(plate, pulse, bd.Numerics(window=2 * float(narrow.window)), gauges=g)
+    later = float(wide.gauges.peak_strain[0]) / float(narrow.gauges.peak_strain[0]) - 1
+    assert later > 0.1 and float(narrow.convergence.window) == pytest.approx(later, rel=1e-4)
+    assert not bool(narrow.converged) and float(narrow.error_estimate) >= float(narrow.convergence.window)
+    notes = bd.response_notes(bd.load_scene("phone"), narrow)
+    assert any("a gauge reads 12 % more after the peak window (2.506 ms)" in n and "widen the window (Numerics.window"
+               in n for n in notes), notes
 
 
 def test_default_gradients_of_a_screwed_board_match_central_differences():

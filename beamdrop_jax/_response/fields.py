@@ -75,7 +75,7 @@ def _not_converged(board, response: Response) -> str:
     c = response.convergence
     rtol = Numerics().convergence_rtol
     values = {"modes": float(response.error_estimate)} if c is None else {
-        "modes": float(c.modes), "gauges": float(c.gauges), "basis": float(c.basis)}
+        "modes": float(c.modes), "gauges": float(c.gauges), "basis": float(c.basis), "window": float(c.window)}
     failed = {k: v for k, v in values.items() if v > rtol} or dict([max(values.items(), key=lambda kv: kv[1])])
     if "modes" in failed and "gauges" in failed:  # one fix for both: name the larger
         del failed["gauges" if failed["modes"] >= failed["gauges"] else "modes"]
@@ -83,7 +83,12 @@ def _not_converged(board, response: Response) -> str:
     # A check with fewer modes than the answer means the count hit its cap.
     capped = int(response.check_modes) < int(response.n_modes) or (c is not None and c.check_cap)
     for name, value in sorted(failed.items(), key=lambda kv: -kv[1]):
-        if name == "basis":
+        if name == "window":
+            window = float(response.window)
+            said.append(f"a gauge reads {value * 100:.2g} % more after the peak window ({window * 1e3:.4g} ms) than "
+                        "within it")
+            fixes.append(f"widen the window (Numerics.window, s; twice this one is {2 * window * 1e3:.4g} ms)")
+        elif name == "basis":
             said.append(f"the Ritz basis's error at the peak or a gauge, from a basis 4 functions larger each way, is "
                         f"{value * 100:.2g} %")
             fixes.append(f"raise Plate.basis (now {board.basis}; `basis = [nx, ny]` in the scene file's [plate], at "

@@ -81,7 +81,7 @@ def _respond_line(board, motion, numerics: Numerics, flags) -> Response:
         check_modes=check,
         error_estimate=error,
         converged=(error <= numerics.convergence_rtol) & ~bad,
-        convergence=Convergence(error, jnp.zeros_like(error), jnp.zeros_like(error)),
+        convergence=Convergence(error, *(jnp.zeros_like(error),) * 3),
         window=window,
         flags=flags,
     )

@@ -26,19 +26,25 @@ class Convergence(eqx.Module):
     - `gauges`: of the gauges' peak strains with the check's modes (the largest over the gauges; 0 without);
     - `basis`: of the peak stress and the gauges' peak strains with a Ritz basis 4 functions larger each way, at
       the same points and times, extrapolated to the error of this basis (a plate; 0 for a beam, whose modes are
-      exact).
+      exact);
+    - `window`: how much more a gauge reads over the next window, (window, 2 window], than its peak within the
+      window (the largest over the gauges; 0 where every gauge reads less, without gauges, and where the motion is
+      known over the window only: a plate under half-sine pulses is checked). A plate's modes are not harmonics:
+      their beats can raise a gauge's strain after one fundamental period.
 
-    `Response.error_estimate` is the larger of `modes` and `gauges` plus `basis`; `Response.converged` holds when
-    it is within `Numerics.convergence_rtol`; `worst()` names the largest."""
+    `Response.error_estimate` is the larger of `modes` and `gauges` plus `basis`, or `window` where larger;
+    `Response.converged` holds when it is within `Numerics.convergence_rtol`; `worst()` names the largest."""
 
     modes: Float[Array, ""]
     gauges: Float[Array, ""]
     basis: Float[Array, ""]
+    window: Float[Array, ""]
     check_cap: bool = eqx.field(static=True, default=False)
 
     def worst(self) -> tuple[str, float]:
         """(name, value) of the largest estimate (concrete results)."""
-        values = {"modes": float(self.modes), "gauges": float(self.gauges), "basis": float(self.basis)}
+        values = {"modes": float(self.modes), "gauges": float(self.gauges), "basis": float(self.basis),
+                  "window": float(self.window)}
         name = max(values, key=values.get)
         return name, values[name]
 
@@ -57,7 +63,8 @@ class Response(eqx.Module):
     - `peak`: a `Peak`.
     - `frequencies`: natural frequencies of the computed modes, Hz.
     - `n_modes`: modes in the reported peak; `check_modes`: modes of the convergence check.
-    - `error_estimate`: the largest of the convergence estimates (`convergence`: modes, gauges, basis), relative.
+    - `error_estimate`: the largest of the convergence estimates (`convergence`: modes, gauges, basis, window),
+      relative.
     - `converged`: `error_estimate <= Numerics.convergence_rtol` (and the result not flagged).
     - `convergence`: each estimate (`Convergence`).
     - `window`: time window, s (to one fundamental period after the last impact's pulse). `flags`: `Flag` mask (0 = valid; otherwise the peak fields are NaN).

@@ -176,9 +176,12 @@ def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None) -> Res
             / jnp.maximum(read.peak_strain, tiny))
         basis_error = _basis_error(plate, motion, numerics, S, stress, read, tiny)
     modes = S.modes
-    convergence = Convergence(modes_error, gauges_error, basis_error, check_cap=numerics.method == "closed_form")
+    window_error = (_after_window(plate, S, mask, read) if read is not None and numerics.method == "closed_form"
+                    and S.modal.windows == 1 else jnp.zeros_like(modes_error))
+    convergence = Convergence(modes_error, gauges_error, basis_error, window_error,
+                              check_cap=numerics.method == "closed_form")
     # The modes' and the basis's errors add: the basis check measures the error of the answer's modes.
-    error = jnp.maximum(modes_error, gauges_error) + basis_error
+    error = jnp.maximum(jnp.maximum(modes_error, gauges_error) + basis_error, window_error)
     nonfinite = ~jnp.isfinite(stress.value) | ~jnp.isfinite(deflection.value)
     flags = combine(flags, plate.flags(), S.flags, flag_if(S.failed, Flag.SOLVER_FAILED),
                     flag_if(nonfinite, Flag.NONFINITE_RESULT), response_flags(plate, deflection.value, gauges))
@@ -196,6 +199,18 @@ def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None) -> Res
         converged=(error <= numerics.convergence_rtol) & ~bad, window=S.window, flags=flags,
         gauges=None if read is None else blank_readings(read, bad), is_plate=True, convergence=convergence,
     )
+
+
+def _after_window(plate, S: _Setup, mask, read: Gauges):
+    """`Convergence.window`: how much more a gauge reads over (window, 2 window] than its peak within the window,
+    relative (0 where it reads less), the largest over the gauges; on the window's own grid spacing, from the closed
+    form, which holds after the pulse too."""
+    later = S.window + S.t[1:]
+    scale, R = S.modal.grid_factors(jax.lax.stop_gradient(later))
+    _, *curvatures = S.modes.shapes(read.x, read.y)
+    strain = surface_strain(plate, *(field_on_grid(mask, (scale, R), v) for v in curvatures))
+    peak = jnp.maximum(read.peak_strain, jnp.finfo(read.peak_strain.dtype).tiny)
+    return jax.lax.stop_gradient(jnp.max(jnp.maximum(jnp.max(strain, axis=1) / peak - 1.0, 0.0)))
 
 
 def _readings(plate, modal, modes, mask, read: Gauges):

@@ -90,6 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
                                help=f"at most N modes where the count is chosen from the scene, N in [4, "
                                     f"{MAX_MODES}] (default 16; Numerics.max_modes): raise it when a drop says "
                                     "it is not converged")
+            p.add_argument("--window", type=_float_in(0.0, 1e3, "ms", lo_open=True), metavar="MS",
+                           help="the peak window, ms (default: the contact plus the board's fundamental period; "
+                                "Numerics.window): widen it when a plate drop says a gauge reads more after it")
             p.add_argument("--basis", type=_basis, metavar="NX,NY",
                            help="a plate's Ritz basis, NX x NY functions, each in [4, 40] (default: the scene's, "
                                 "12,12 unless its [plate] gives basis; Plate.basis): raise it when a plate drop says "

@@ -251,6 +251,7 @@ def _cli_note(note: str, numerics) -> str:
         ("`basis = [nx, ny]` in the scene file's [plate], at most 40", "--basis NX,NY, or `basis = [nx, ny]` in the "
                                                                          "scene file's [plate]; at most 40"),
         ("raise Numerics.max_modes", f"raise --max-modes (Numerics.max_modes, {n} here; at most {MAX_MODES})"),
+        ("widen the window (Numerics.window, s;", "widen the window with --window MS (Numerics.window;"),
         ("raise Numerics.pulse_modes (modes up to f_k x duration >= 2 by default)",
          "give more modes with --n-modes N (or, from Python, raise Numerics.pulse_modes: modes up to f_k x "
          "duration >= 2 by default)"),
@@ -416,6 +417,8 @@ def _numerics(args, **overrides):
 
     kw = {k: getattr(args, k) for k in ("method", "solver", "n_modes", "max_modes", "max_impacts", "landing_steps")
           if getattr(args, k, None)}
+    if getattr(args, "window", None):
+        kw["window"] = args.window * 1e-3  # ms on the command line
     kw.update(overrides)
     return bd.Numerics(**kw)
 
