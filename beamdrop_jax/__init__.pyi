@@ -83,6 +83,7 @@ from ._response.fields import (
     plate_strain_map as plate_strain_map,
     response_fields as response_fields,
     response_notes as response_notes,
+    sample_notes as sample_notes,
 )
 from ._response.setup import (
     support_motion as support_motion,

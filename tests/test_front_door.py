@@ -123,6 +123,7 @@ def one_error_line(capsys, argv, *expected):
         (["montecarlo", "-n", "10"], ["--allowable-microstrain UE is required", "no default"]),
         (["montecarlo", "--allowable-microstrain", "2000", "--heights", "1.5:0.5"], ["--heights", "above high"]),
         (["montecarlo", "--allowable-microstrain", "2000", "--heights", "0:1"], ["--heights", "(0, 1000] m"]),
+        (["optimize", "--heights", "5000"], ["--heights", "(0, 1000] m"]),
         (["montecarlo", "--allowable-microstrain", "2000", "--durations", "0:1"], ["--durations", "(0, 100] ms"]),
         (["montecarlo", "--allowable-microstrain", "2000", "--orientations", "0:90:5"], ["--orientations", "low:high"]),
         (["montecarlo", "--allowable-microstrain", "2000", "--orientations", "abc"], ["--orientations", "not a number"]),
@@ -532,3 +533,14 @@ for argv in json.loads(sys.argv[1]):
         lines = [line for line in err.splitlines() if not line.startswith("beamdrop: compiling")]
         assert (code, compiled, len(lines)) == (2, 0, 1), (argv, code, compiled, err)
         assert seconds < 2.0, (argv, seconds)  # the first one pays for building the parser's scene list
+
+
+def test_many_drops_say_when_strain_leaves_the_elastic_range_or_durations_look_like_seconds():
+    """`montecarlo`'s notes (`bd.sample_notes`, the CLI's `note:` lines), as `drop`'s: heights typed in mm give
+    strains past the elastic range; durations typed in seconds on the command line (which takes ms) are
+    microseconds. NaN (drops outside the model) is left out; ordinary drops get no note."""
+    notes = bd.sample_notes(np.array([1e-3, np.nan, 0.1105]), np.array([5e-7, 1e-6]))
+    assert notes[0] == "largest peak strain 11.1 % is beyond the elastic range of board materials"
+    assert "contact durations from 0.0005 ms" in notes[1] and "--durations 0.5" in notes[1]
+    assert bd.sample_notes(np.array([2e-3, np.nan]), np.array([2e-4, 1e-3])) == []
+    assert bd.sample_notes(np.array([np.nan])) == []

@@ -107,6 +107,26 @@ LONGEST_CONTACT = 0.1
 """A contact duration (s) beyond which `response_notes` asks whether it was meant in seconds."""
 LIGHTEST_BOARD = 100.0
 """A board density (kg/m^3) below which `response_notes` asks whether it was meant in kg/m^3."""
+SHORTEST_CONTACT = 1e-5
+"""A contact duration (s) below which `sample_notes` asks whether it was meant in ms (a drop's contact lasts about
+0.05 ms on metal to tens of ms on foam)."""
+ELASTIC_STRAIN = 0.01
+"""A peak strain beyond the elastic range of board materials (FR-4, ceramics, solder joints fail well below)."""
+
+
+def sample_notes(peak_strain, durations=None) -> list[str]:
+    """What a reader of many drops' numbers should know (`montecarlo`): the largest peak strain beyond the elastic
+    range, contact durations (s, the drawn ones or their bounds) too short to be a drop's (a unit slip)."""
+    notes = []
+    strain = np.asarray(peak_strain, dtype=float)
+    worst = float(np.max(strain[np.isfinite(strain)], initial=0.0))
+    if worst > ELASTIC_STRAIN:
+        notes.append(f"largest peak strain {worst * 100:.3g} % is beyond the elastic range of board materials")
+    if durations is not None and float(np.min(durations)) < SHORTEST_CONTACT:
+        notes.append(f"contact durations from {float(np.min(durations)) * 1e3:.3g} ms: shorter than a drop's contact "
+                     "lasts (about 0.05 ms on metal to tens of ms on foam); durations are in seconds in Python and in "
+                     "ms on the command line (0.5 ms is 0.0005 s, --durations 0.5)")
+    return notes
 
 
 def response_notes(scene: Scene, response: Response) -> list[str]:
@@ -135,7 +155,7 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
     elif float(board.density) < LIGHTEST_BOARD:
         notes.append(f"board density {float(board.density):g} kg/m^3: lighter than any board material (about 1000 "
                      "to 9000 kg/m^3); the field is in kg/m^3 (1.85 g/cm^3 is 1850)")
-    elif float(peak.strain) > 0.01:
+    elif float(peak.strain) > ELASTIC_STRAIN:
         notes.append(f"peak strain {float(peak.strain) * 100:.3g} % is beyond the elastic range of board materials")
     if float(peak.deflection) > float(board.thickness):
         notes.append(f"peak deflection {float(peak.deflection) / float(board.thickness):.2g} x the thickness: "

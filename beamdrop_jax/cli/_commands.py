@@ -392,6 +392,8 @@ def cmd_montecarlo(args, output):
                     "contact model, but random drops never draw one (a hair off flat, one corner strikes first and the "
                     "far corner's strike is not counted): --contact-model auto lands near-flat drops compliantly and "
                     "counts them")
+    for note in bd.sample_notes(res.peak_strain, f64(res.samples.contact.duration) if args.durations else None):
+        output.note(note)
     if not args.no_plots:
         fig = bd.plot_montecarlo(res, limit=limit, quantity="strain", varied=varied, distribution=distribution,
                                  flat=flat)

@@ -187,7 +187,7 @@ def _scene_arg(text):
 
 
 def _heights(text):
-    height = _float_in(0.0, 1e4, "m", lo_open=True)
+    height = _float_in(0.0, 1e3, "m", lo_open=True)  # as montecarlo's and campaign's
     return [height(v) for v in text.split(",")]
 
 
