@@ -860,6 +860,34 @@ def test_strain_map_shows_the_gauge_on_the_peak_and_no_tabs_round_the_mounts():
     assert [t.get_text() for t in ax.texts] == ["1"]
 
 
+def test_a_plates_strain_peak_has_its_own_place_and_the_map_marks_it():
+    """Poisson's ratio couples a plate's two directions: on the JESD22 board with nu = 0.3 the largest principal
+    strain is on a free edge (uniaxial stress there) and the largest principal stress on the centre line. The
+    strain map is drawn at the strain peak's time, and its star sits where the map, the field on a plain 1 mm grid,
+    is largest and reads the same value (the star was at the stress peak, labelled with the strain)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import beamdrop_jax as bd
+
+    scene = bd.load_scene("jesd22-board").replace(**{"board.poisson_ratio": 0.3})
+    res = bd.simulate(scene)
+    p = res.peak
+    assert abs(float(p.y)) < 1e-6 and abs(float(p.strain_y)) == pytest.approx(0.0385, abs=1e-9)
+    strain_map = bd.plate_strain_map(scene, res)
+    assert float(strain_map.t) == float(p.strain_t)
+    field = np.asarray(strain_map.strain)
+    i, j = np.unravel_index(np.nanargmax(field), field.shape)
+    assert float(strain_map.x[i]) == pytest.approx(float(p.strain_x), abs=1e-7)
+    assert float(strain_map.y[j]) == pytest.approx(float(p.strain_y), abs=1e-7)
+    assert np.nanmax(field) == pytest.approx(float(p.strain), rel=1e-6)  # two programs: round-off apart
+    assert np.nanmax(np.abs(field[i])) > field[i, np.argmin(np.abs(np.asarray(strain_map.y)))] * 1.01  # not centred
+    ax = bd.plot_plate_strain(strain_map, res, scene.board).axes[0]
+    star = next(line for line in ax.lines if line.get_label().startswith("peak"))
+    assert (star.get_xdata()[0], star.get_ydata()[0]) == pytest.approx((float(p.strain_x) * 1e3, float(p.strain_y) * 1e3))
+    assert res.summary()["peak_strain_y_mm"] == pytest.approx(float(p.strain_y) * 1e3)
+
+
 def test_gauge_and_sensitivity_draw_figures_and_latency_writes_nothing(tmp_path, monkeypatch, capsys):
     import matplotlib
 

@@ -75,11 +75,13 @@ def test_flags_under_jit():
         bd.Flag.DURATION_NEGATIVE: (0.5, 0.3, -5e-4, 0.0, 0.0, 1.5),
         bd.Flag.BUCKLED: (0.5, 0.3, 5e-4, -1e3, 0.0, 1.5),
         bd.Flag.BOARD_OUTSIDE_HOUSING: (0.5, 0.3, 5e-4, 0.0, 0.05, 1.5),
-        bd.Flag.NEGATIVE_HEIGHT: (0.5, 0.3, 5e-4, 0.0, 0.0, -1.0),
+        bd.Flag.HEIGHT_RANGE: (0.5, 0.3, 5e-4, 0.0, 0.0, -1.0),
         bd.Flag.NONFINITE_INPUT: (0.5, 0.3, 5e-4, 0.0, 0.0, float("nan")),
     }
     for flag, args in cases.items():
         assert int(flags_of(*args)) & flag, flag
+    # Above 1000 m (a 140 m/s impact, past any device's terminal speed in air) is out of range too.
+    assert int(flags_of(0.5, 0.3, 5e-4, 0.0, 0.0, 1e300)) == bd.Flag.HEIGHT_RANGE
 
 
 def eqx_tree_at_centre(scene, c1):

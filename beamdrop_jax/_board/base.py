@@ -118,7 +118,10 @@ class Peak(eqx.Module):
     resolve (two within one cell) is beyond it: `Numerics.points_per_period` and the plate's basis set the grid. With mid-plane stretching (`Numerics(stretching=True)`) `stress` and `strain` are those of the
     face in tension, bending plus membrane, and `membrane_stress` (Pa) is the membrane part at the peak (0
     without stretching). On a plate `stress` and `strain` are the largest principal surface values, `y` and
-    `deflection_y` (m, from the centre line) say where across the width (0 for a beam)."""
+    `deflection_y` (m, from the centre line) say where across the width (0 for a beam), and the strain peak has
+    its own place and time, `strain_x`, `strain_y`, `strain_t` (Poisson's ratio couples the two directions: the
+    largest principal strain need not be where the largest principal stress is; on a beam they are the stress
+    peak's)."""
 
     stress: Float[Array, ""]
     membrane_stress: Float[Array, ""]
@@ -131,6 +134,9 @@ class Peak(eqx.Module):
     search_error: Float[Array, ""]
     y: Float[Array, ""]
     deflection_y: Float[Array, ""]
+    strain_x: Float[Array, ""]
+    strain_y: Float[Array, ""]
+    strain_t: Float[Array, ""]
 
 
 class Gauges(eqx.Module):

@@ -30,7 +30,8 @@ class Flag(enum.IntFlag):
     FLAT_LANDING_WITH_MOTION = 256
     SEPARATING_CONTACT = 512
     SOLVER_FAILED = 1024
-    NEGATIVE_HEIGHT = 2048
+    HEIGHT_RANGE = 2048  # a drop height outside [0, 1000] m
+    NEGATIVE_HEIGHT = 2048  # the same bit, by its former name
     PIVOTING_CONTACT = 4096
     ANGLE_RANGE = 8192
     NONFINITE_RESULT = 16384

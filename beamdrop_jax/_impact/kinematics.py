@@ -183,9 +183,9 @@ def _raise_outside_law(scene, flat_moving, separating, v0):
         )
     if bool(separating):
         raise ValueError(
-            f"the striking corner's normal velocity C0 = {float(v0[1]):g} m/s is not approaching the ground "
-            f"(C0 must be < 0): Drop.height = {float(d.height):g} m, Drop.spin = {float(d.spin):g} rad/s. "
-            "Use Drop.height > 0 or a spin that does not lift the corner."
+            f"the striking corner's normal velocity C0 = {float(v0[1]) + 0.0:g} m/s does not approach the ground "
+            f"(C0 must be < 0): Drop.height = {float(d.height):g} m, Drop.spin = {float(d.spin):g} rad/s. Use "
+            "Drop.height > 0 (up to 1000 m), or at Drop.height = 0 a spin that moves the lowest corner down."
         )
 
 

@@ -319,8 +319,8 @@ def plot_plate_strain(strain_map, response, plate, *, axes=None):
             ax.plot(mx, my, "+", color="tab:cyan", ms=8)
         ax.plot([], [], "+", color="tab:cyan", label=f"mounts (discs r = {r:g} mm not searched)")
     peak = response.peak
-    ax.plot(float(peak.x) * 1e3, float(peak.y) * 1e3, "*", ms=13, mfc="yellow", mec="k", zorder=4,
-            label=f"peak {float(peak.strain) * 1e6:.0f} microstrain at t = {float(peak.t) * 1e3:.3g} ms")
+    ax.plot(float(peak.strain_x) * 1e3, float(peak.strain_y) * 1e3, "*", ms=13, mfc="yellow", mec="k", zorder=4,
+            label=f"peak {float(peak.strain) * 1e6:.0f} microstrain at t = {float(peak.strain_t) * 1e3:.3g} ms")
     gauges = response.gauges
     if gauges is not None:  # open squares around the star where a gauge sits on the peak, numbered
         gx, gy = np.asarray(gauges.x) * 1e3, np.asarray(gauges.y) * 1e3

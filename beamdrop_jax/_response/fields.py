@@ -167,14 +167,14 @@ def response_notes(scene: Scene, response: Response) -> list[str]:
 
 def plate_strain_map(scene: Scene, response: Response, numerics: Numerics | None = None, t=None, nx: int = 133,
                      ny: int = 78) -> StrainMap:
-    """The largest principal surface strain over a plate scene's board at time `t` (s; default: the peak stress's
-    time), with the modes `response` (from `simulate(scene, numerics)`) used."""
+    """The largest principal surface strain over a plate scene's board at time `t` (s; default: the peak strain's
+    time, `response.peak.strain_t`), with the modes `response` (from `simulate(scene, numerics)`) used."""
     numerics = Numerics() if numerics is None else numerics
     if not scene.board.SURFACE:
         raise ValueError("plate_strain_map needs a scene whose board is a bd.Plate")
     as_int(nx, "nx", 2)
     as_int(ny, "ny", 2)
-    t = response.peak.t if t is None else as_float(t, "t", Range(0.0, unit="s"))
+    t = response.peak.strain_t if t is None else as_float(t, "t", Range(0.0, unit="s"))
     return _strain_map(scene, numerics, response.n_modes, t, nx, ny, landing=_landing_of(response))
 
 

@@ -69,6 +69,9 @@ def _respond_line(board, motion, numerics: Numerics, flags) -> Response:
         search_error=kappa.error,
         y=jnp.zeros_like(kappa.x),
         deflection_y=jnp.zeros_like(kappa.x),
+        strain_x=nan(kappa.x),
+        strain_y=jnp.zeros_like(kappa.x),
+        strain_t=nan(kappa.t),
     )
     return Response(
         impulse=None,

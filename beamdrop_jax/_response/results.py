@@ -128,6 +128,8 @@ class Response(eqx.Module):
             "peak_stress_x_mm": p.x * 1e3,
             **({"peak_stress_y_mm": p.y * 1e3} if r.is_plate else {}),
             "peak_stress_t_ms": p.t * 1e3,
+            **({"peak_strain_x_mm": p.strain_x * 1e3, "peak_strain_y_mm": p.strain_y * 1e3,
+                "peak_strain_t_ms": p.strain_t * 1e3} if r.is_plate else {}),
             "peak_deflection_mm": p.deflection * 1e3,
             "peak_deflection_x_mm": p.deflection_x * 1e3,
             **({"peak_deflection_y_mm": p.deflection_y * 1e3} if r.is_plate else {}),

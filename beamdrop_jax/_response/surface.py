@@ -191,6 +191,7 @@ def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None) -> Res
         stress=nan(stress.value), membrane_stress=jnp.zeros_like(stress.value), strain=nan(strain.value),
         x=nan(stress.x), t=nan(stress.t), deflection=nan(deflection.value), deflection_x=nan(deflection.x),
         deflection_t=nan(deflection.t), search_error=stress.error, y=nan(stress.y), deflection_y=nan(deflection.y),
+        strain_x=nan(strain.x), strain_y=nan(strain.y), strain_t=nan(strain.t),
     )
     return Response(
         impulse=None, housing=None, impacts=None, support_jumps=motion.first_jumps()[:2],

@@ -151,7 +151,7 @@ class Drop(eqx.Module):
 
     RANGES: ClassVar[dict] = {
         "orientation": _ANGLE,
-        "height": (Range(0.0, unit="m"), Flag.NEGATIVE_HEIGHT),
+        "height": (Range(0.0, 1000.0, unit="m"), Flag.HEIGHT_RANGE),
         "spin": _ANY["rad/s"],
         "horizontal_speed": _ANY["m/s"],
         "tilt": _ANGLE,

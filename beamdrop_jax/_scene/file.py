@@ -17,6 +17,7 @@ range: each is a `ValueError` that names the file, the section, the key and the 
 
 import difflib
 import importlib.resources
+import re
 import tomllib
 from pathlib import Path
 
@@ -65,6 +66,28 @@ def embedded_scenes() -> list[str]:
     """Names of the scenes shipped in the package (`load_scene(name)` loads one)."""
     folder = importlib.resources.files("beamdrop_jax") / "scenes"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def embedded_scene_text(name: str) -> str:
+    """The TOML text of embedded scene `name` (a start for a scene file of one's own: an `extends` in it names
+    another embedded scene, which a copy reads as well)."""
+    if name not in embedded_scenes():
+        near = difflib.get_close_matches(name, embedded_scenes(), n=1)
+        raise ValueError(f"no embedded scene {name!r}{f'; did you mean {near[0]!r}?' if near else ''} (embedded "
+                         f"scenes: {', '.join(embedded_scenes())})")
+    return (importlib.resources.files("beamdrop_jax") / "scenes" / f"{name}.toml").read_text(encoding="utf-8")
+
+
+def embedded_scene_summary(name: str) -> str:
+    """The first sentence of embedded scene `name`'s opening comment: what it models."""
+    header = []
+    for line in embedded_scene_text(name).splitlines():
+        if not line.startswith("#"):
+            break
+        header.append(line.lstrip("#").strip())
+    text = " ".join(header)
+    end = re.search(r"\.\s+(?=[A-Z])", text)  # not at an abbreviation ("eqs. 4.10")
+    return text if end is None else text[:end.start() + 1]
 
 
 def _scene_path(path) -> Path:

@@ -50,7 +50,8 @@ from ._helpers import (
     _writes_files,
 )
 
-from ._commands import cmd_bench, cmd_campaign, cmd_drop, cmd_impact, cmd_montecarlo, cmd_optimize, cmd_sensitivity
+from ._commands import (cmd_bench, cmd_campaign, cmd_drop, cmd_impact, cmd_montecarlo, cmd_optimize, cmd_scenes,
+                        cmd_sensitivity)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -70,7 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
     def command(name, help_text, description=None):
         p = sub.add_parser(name, help=help_text, description=(description or help_text).replace("%%", "%"))
         p.add_argument("--scene", metavar="FILE_OR_NAME", type=_scene_arg,
-                       help=f"scene TOML file, or an embedded scene: {scenes} (default: default)")
+                       help=f"scene TOML file, or an embedded scene: {scenes} (default: default; 'beamdrop "
+                            "scenes' lists them)")
         p.add_argument("--out", default="beamdrop-out", metavar="DIR",
                        help="folder for figures and tables, created if needed (default: beamdrop-out)")
         p.add_argument("--float32", action="store_true", help="compute in float32 (default: float64)")
@@ -228,6 +230,16 @@ def build_parser() -> argparse.ArgumentParser:
     impacts(p)
     p.set_defaults(func=cmd_montecarlo)
 
+    p = sub.add_parser("scenes", help="the embedded scenes: name, board and what each models; or one as TOML text",
+                       description="The scenes shipped in the package, for --scene NAME; 'beamdrop scenes NAME' "
+                                   "prints one as TOML text, a start for a scene file of your own "
+                                   "('beamdrop scenes phone > my-phone.toml').")
+    p.add_argument("name", nargs="?", metavar="NAME", choices=embedded_scenes(),
+                   help=f"print this scene's TOML text: {scenes}")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    # Reads files only: nothing is compiled or written.
+    p.set_defaults(func=cmd_scenes, no_plots=True, no_cache=True, float32=False)
+
     p = command("bench", "speed against accuracy (peak-stress error, seconds per drop) for every method against "
                          "NumPy and SciPy peers, JSON table and chart; or --latency: time to first answer, printed "
                          "(no files)")
@@ -290,13 +302,13 @@ def _setup_jax(args):
     if hasattr(args, "scene"):
         _scene(args)  # a wrong scene file, or an option it cannot take, is reported before any word on compiling
     if args.no_cache or os.environ.get("BEAMDROP_NO_CACHE", "") not in ("", "0"):
-        print("beamdrop: compiling (the compilation cache is off)", file=sys.stderr)
+        _say_when_compiling("beamdrop: compiling (the compilation cache is off)")
         return None
     cache = _cache_dir()
     try:
         cache.mkdir(parents=True, exist_ok=True)
     except OSError:
-        print(f"beamdrop: compiling (cannot create the cache folder {cache})", file=sys.stderr)
+        _say_when_compiling(f"beamdrop: compiling (cannot create the cache folder {cache})")
         return None
     jax.config.update("jax_compilation_cache_dir", str(cache))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
@@ -304,9 +316,38 @@ def _setup_jax(args):
     key = hashlib.sha1(repr((_version(), jax.__version__, settings)).encode()).hexdigest()[:16]
     stamp = cache / f"compiled-{key}"
     if not stamp.exists():
-        print(f"beamdrop: compiling (first run with these settings; kept in {cache} for later runs)",
-              file=sys.stderr)
+        _say_when_compiling(f"beamdrop: compiling (first run with these settings; kept in {cache} for later runs)")
     return stamp
+
+
+_TRACED = "/jax/core/compile/jaxpr_trace_duration"
+
+
+def _say_when_compiling(line: str) -> None:
+    """Print `line` once, when the command's first program has been traced (before XLA compiles it): an input
+    refused before then (most are checked eagerly) is reported without a word on compiling. The listener goes with
+    the command (`_end_compiling_notice`)."""
+    import jax
+
+    def listener(event, duration, **kwargs):
+        if event == _TRACED and _notice:
+            print(_notice.pop(), file=sys.stderr, flush=True)
+
+    _notice[:] = [line]
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    _notice_listener[:] = [listener]
+
+
+_notice: list[str] = []  # the line still to print
+_notice_listener: list = []
+
+
+def _end_compiling_notice() -> None:
+    import jax
+
+    _notice.clear()
+    while _notice_listener:
+        jax.monitoring.unregister_event_duration_listener(_notice_listener.pop())
 
 
 def _run_record(argv) -> Path | None:
@@ -437,6 +478,8 @@ def _main(argv) -> int:
     finally:
         if preloading is not None:  # never exit while it runs in XLA
             preloading.join()
+        if "jax" in sys.modules:
+            _end_compiling_notice()
     if stamp is not None:
         _bound_cache(stamp)
         if used and used != listed:

@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import math
+import textwrap
 from pathlib import Path
 from .._studies.standards import STANDARDS
 from ._helpers import QUANTITIES, _cli_note, _degrees_list, _numerics, _save, _scene, _scene_name, _tidy_positions
@@ -448,3 +449,35 @@ def cmd_bench(args, output):
 
 
 # ---------------------------------------------------------------------------------------------------------------
+
+
+def cmd_scenes(args, output):
+    from .._scene.file import embedded_scene_summary, embedded_scene_text, embedded_scenes
+
+    if args.name:
+        text = embedded_scene_text(args.name)
+        output.report.update(name=args.name, toml=text)
+        output.say(text.rstrip("\n"))
+        return
+    import beamdrop_jax as bd
+
+    rows = {}
+    for name in embedded_scenes():
+        scene = bd.load_scene(name)
+        b, mm = scene.board, lambda v: f"{1e3 * float(v):g}"
+        if hasattr(b, "edges"):
+            mounts = 0 if b.mounts is None else len(b.mounts)
+            board = f"plate {mm(b.length)} x {mm(b.width)} x {mm(b.thickness)} mm, edges {b.edges}, {mounts} mounts"
+        else:
+            board = f"beam {mm(b.length)} x {mm(b.thickness)} mm, {b.ends} ends"
+        h = scene.housing
+        housing = (f"box {mm(h.width)} x {mm(h.height)} x {mm(h.depth)} mm" if h.is_box else
+                   f"plane section {mm(h.width)} x {mm(h.height)} mm")
+        rows[name] = dict(board=board, housing=housing, about=embedded_scene_summary(name))
+    output.report["scenes"] = rows
+    output.say("Embedded scenes (--scene NAME; 'beamdrop scenes NAME' prints one as TOML):")
+    width = max(map(len, rows))
+    for name, row in rows.items():
+        output.say(f"  {name:<{width}}  {row['board']}; housing: {row['housing']}")
+        for line in textwrap.wrap(row["about"], 110 - width):
+            output.say(f"  {'':<{width}}  {line}")
