@@ -15,9 +15,8 @@ Ritz basis psi_ab = X_a(xi) Y_b(eta):
 - across: Legendre polynomials times (1/2 + eta)^p (1/2 - eta)^q.
 Mounts (u = 0 at points, rotation free) are imposed exactly: the stiffness is reduced to the subspace of basis
 combinations that vanish at the mounts (Householder reflections), so frequencies and modes are smooth
-(differentiable) in the mount positions. The stiffness spans ~1e11 at a 32 x 32 basis: its eigenproblem is solved
-from the inverse (`_lowest_eigh`), which keeps the lowest eigenvalues' relative accuracy (Ritz upper bounds that
-fall as the basis grows, tests/test_plate.py).
+(differentiable) in the mount positions. (Shifting the held directions above the spectrum instead, by twice the
+stiffness's trace, which spans ~1e11 at a 32 x 32 basis, cost the lowest eigenvalues ~3e-5 of their accuracy.)
 The basis integrals are constants (Gauss-Legendre quadrature in NumPy float64); the plate's size and material enter
 as scalars, so `jax.grad` reaches every float field.
 
@@ -384,32 +383,19 @@ def _eigen(plate: Plate, n_modes: int):
          + nu * (jnp.kron(Xc, Yc.T) + jnp.kron(Xc.T, Yc)) / (L * W) ** 2 + 2 * (1 - nu) * jnp.kron(X1, Y1) / (L * W) ** 2)
     A = (A + A.T) / 2
     if plate.mounts is None:
-        lam, V = _lowest_eigh(A)
+        lam, V = _eigh(A)
     else:
         # The combinations that vanish at the mounts: the last n - m coordinates after m Householder reflections.
         G = _values(plate, plate.mounts[:, 0] / L, plate.mounts[:, 1] / W) @ jnp.kron(XT, YT)  # (m, n_basis)
         m = G.shape[0]
         reflectors = _householder(G.T)
         B = _reflect(reflectors, _reflect(reflectors, A).T)[m:, m:]
-        lam, V = _lowest_eigh((B + B.T) / 2)
+        lam, V = _eigh((B + B.T) / 2)
         V = _reflect(reflectors, jnp.concatenate([jnp.zeros((m, V.shape[1]), V.dtype), V]), inverse=True)
         # The m directions the mounts hold come last, above the spectrum, with no shape (`PlateModes.n_free`).
         lam = jnp.concatenate([lam, jnp.full(m, 2 * jnp.trace(B), lam.dtype)])
         V = jnp.concatenate([V, jnp.zeros((n_basis, m), V.dtype)], axis=1)
     return lam[:n_modes] * scale, jnp.kron(XT, YT) @ V[:, :n_modes] / math.sqrt(2.0)
-
-
-def _lowest_eigh(B):
-    """Eigenvalues (ascending) and eigenvectors of a symmetric positive definite Ritz stiffness B, from its inverse
-    (Cholesky of B scaled to a unit diagonal): the lowest eigenvalues keep their relative accuracy. `eigh(B)` loses
-    eps |B| / lambda_1 of them, and a plate's B spans ~1e11 at a 32 x 32 basis: its lowest eigenvalues then moved
-    by up to 3.3e-4 between two compilations of one program, against ~1e-8 from the inverse."""
-    d = 1.0 / jnp.sqrt(jnp.diagonal(B))
-    R = jnp.linalg.cholesky(d[:, None] * B * d[None, :])
-    R_inv_d = jax.scipy.linalg.solve_triangular(R, jnp.diag(d), lower=True)  # B^-1 = (R^-1 D)^T (R^-1 D)
-    C = R_inv_d.T @ R_inv_d
-    mu, V = _eigh((C + C.T) / 2)
-    return 1.0 / mu[::-1], V[:, ::-1]
 
 
 def _householder(Gt):
