@@ -58,7 +58,7 @@ def test_scenes_lists_every_embedded_scene_and_prints_one_as_a_file(tmp_path, ca
         path.write_text(capsys.readouterr().out)
         for a, b in zip(jax.tree_util.tree_leaves(bd.load_scene(path)), jax.tree_util.tree_leaves(bd.load_scene(name))):
             np.testing.assert_array_equal(a, b)
-    one_error_line(capsys, ["scenes", "phon"], "invalid choice: 'phon'", "'phone'")
+    one_error_line(capsys, ["scenes", "phon"], "invalid choice: 'phon'", "did you mean 'phone'?")
 
 
 def test_every_option_has_help_text():
@@ -105,12 +105,14 @@ def one_error_line(capsys, argv, *expected):
         (["drop", "--gauge", "500", "--no-plots", "--no-cache"], ["--gauge", "off the board"]),
         (["montecarlo", "-n", "0"], ["-n", ">= 1"]),
         (["campaign", "--standard", "ista-9"], ["--standard", "invalid choice"]),
+        (["campaign", "--standard", "jesd22"], ["--standard", "invalid choice", "did you mean 'jesd22-b111'?"]),
         (["campaign", "--standard", "ista-1a", "--mass", "-1"], ["--mass", "kg"]),
         (["campaign", "--standard", "ista-1a", "--height", "2", "--no-cache"], ["height = 2.0 m", "give mass instead"]),
         (["drop", "--window", "0"], ["--window", "(0, 1000] ms"]),
         (["drop", "--window", "5ms"], ["--window", "not a number"]),
         (["drop", "--scene", "nonexistent", "--no-cache"], ["nonexistent", "embedded scenes"]),
-        (["drpo"], ["invalid choice", "drpo"]),
+        (["drpo"], ["invalid choice", "drpo", "did you mean 'drop'?"]),
+        (["drop", "--scene", "jesd22", "--no-cache"], ["no embedded scene 'jesd22'", "did you mean 'jesd22-board'?"]),
         (["drop", "--out", "/proc/beamdrop-cannot-write-here"], ["--out", "cannot write"]),
         (["drop", "--scene", ""], ["--scene", "empty", "embedded scene", "default"]),
         (["impact", "--scene", "  "], ["--scene", "empty"]),

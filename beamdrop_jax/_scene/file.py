@@ -96,8 +96,9 @@ def _scene_path(path) -> Path:
         resource = importlib.resources.files("beamdrop_jax") / "scenes" / f"{text}.toml"
         if resource.is_file():
             return Path(str(resource))
-        raise FileNotFoundError(f"no embedded scene {text!r} and no such file; embedded scenes: "
-                                f"{', '.join(embedded_scenes())}")
+        near = difflib.get_close_matches(text, embedded_scenes(), n=1)
+        raise FileNotFoundError(f"no embedded scene {text!r} and no such file{f' (did you mean {near[0]!r}?)' if near else ''}"
+                                f"; embedded scenes: {', '.join(embedded_scenes())}")
     return Path(path)
 
 

@@ -2,9 +2,11 @@
 
 import argparse
 import contextlib
+import difflib
 import functools
 import math
 import os
+import re
 import sys
 import threading
 from pathlib import Path
@@ -37,11 +39,14 @@ class _Parser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
         # Values that start with a minus and a digit are values, not options: --region -10,-5,10,5 and
         # --orientations -90:90 as well as -3 (no option of the command starts with a digit).
-        import re
-
         self._negative_number_matcher = re.compile(r"^-\.?\d")
 
     def error(self, message):
+        # argparse names the choices of a misspelt value; say which one was meant, as misspelt options do.
+        choice = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)$", message)
+        if choice:
+            near = difflib.get_close_matches(choice[1], re.findall(r"'([^']*)'", choice[2]), n=1)
+            message += f"; did you mean {near[0]!r}?" if near else ""
         sys.stderr.write(f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
         sys.exit(2)
 
