@@ -157,6 +157,11 @@ def one_error_line(capsys, argv, *expected):
         (["impact", "--lwa", "newton"], ["unrecognized", "did you mean --law"]),
         (["impact", "--law", "hooke"], ["--law", "invalid choice"]),
         (["drop", "--gauge", "x"], ["--gauge", "not a number"]),
+        # The range Plate.basis takes, not a narrower one of the CLI's own (it once refused 2 and 3).
+        (["drop", "--scene", "jesd22-board", "--basis", "1,8"], ["--basis", "'1,8'", "[2, 40]"]),
+        (["drop", "--scene", "jesd22-board", "--basis", "8,41"], ["--basis", "[2, 40]"]),
+        (["drop", "--scene", "jesd22-board", "--basis", "3,3", "--no-cache"],
+         ["Plate.basis = (3, 3) holds 9 functions", "--basis NX,NY"]),
         (["optimize", "--region", "20,-5,30,5", "--no-cache"], ["board centre [0.0, 0.0] mm", "inside the region"]),
         (["optimize", "--region", "-100,-5,-90,5", "--no-cache"], ["region", "a level board reaches"]),
     ],

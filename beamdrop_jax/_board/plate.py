@@ -79,6 +79,8 @@ BASIS = (12, 12)
 4 larger each way (`Response.convergence.basis`). Point mounts make the strain near a screw (log r) need a richer
 basis: on the JESD22 board a gauge between two screws moves by 6e-3 from 12 x 12 to 16 x 16 functions, by 2.2e-3
 from 16 x 16 to 20 x 20 and by 1.5e-4 from 20 x 20 to 24 x 24, with 48 modes."""
+BASIS_LIMITS = (2, 40)
+"""The fewest and most Ritz functions `Plate.basis` takes each way (the scene file's `basis` and `--basis` too)."""
 
 _QUADRATURE = 64  # Gauss-Legendre points per direction: exact for the polynomial products, 1e-16 for the sines
 
@@ -230,9 +232,10 @@ class Plate(AbstractBoard):
                              "for the edges x = 0, y = -W/2, x = L, y = +W/2, e.g. 'SFSF', 'SSSS', 'FFFF'")
         if basis is None:
             basis = BASIS
-        if not (isinstance(basis, tuple) and len(basis) == 2 and all(isinstance(b, int) and 2 <= b <= 40
+        if not (isinstance(basis, tuple) and len(basis) == 2 and all(isinstance(b, int) and BASIS_LIMITS[0] <= b <= BASIS_LIMITS[1]
                                                                      for b in basis)):
-            raise ValueError(f"Plate.basis = {basis!r}; valid: (nx, ny), integers in [2, 40]")
+            raise ValueError(f"Plate.basis = {basis!r}; valid: (nx, ny), integers in [{BASIS_LIMITS[0]}, "
+                             f"{BASIS_LIMITS[1]}]")
         self.edges, self.basis = edges, basis
         init_fields(self, dict(length=length, width=width, thickness=thickness, youngs_modulus=youngs_modulus,
                                 density=density, poisson_ratio=poisson_ratio, damping_ratio=damping_ratio,

@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._board.beam import ENDS
+from .._board.plate import BASIS_LIMITS
 from .._common.checks import DEG, Range, as_float
 from .._common.fields import VECTOR_FIELDS
 from .._board.plate import Plate
@@ -154,8 +155,9 @@ def _section(section: str, table, source: str, hint: str | None = None):
         if section == "plate" and key == "basis":
             if not (isinstance(value, list) and len(value) == 2
                     and all(isinstance(b, int) and not isinstance(b, bool) for b in value)):
-                raise ValueError(f"{where} basis = {value!r}: must be a pair [nx, ny] of integers in [2, 40] (the "
-                                 "Ritz functions along x and across the width)")
+                raise ValueError(f"{where} basis = {value!r}: must be a pair [nx, ny] of integers in "
+                                 f"[{BASIS_LIMITS[0]}, {BASIS_LIMITS[1]}] (the Ritz functions along x and across the "
+                                 "width)")
             kwargs[key] = tuple(value)
             continue
         if (section, key) in ANGLE_KEYS:

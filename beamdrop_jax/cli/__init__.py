@@ -96,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
                            help="the peak window, ms (default: the contact plus the board's fundamental period; "
                                 "Numerics.window): widen it when a plate drop says a gauge reads more after it")
             p.add_argument("--basis", type=_basis, metavar="NX,NY",
-                           help="a plate's Ritz basis, NX x NY functions, each in [4, 40] (default: the scene's, "
+                           help="a plate's Ritz basis, NX x NY functions, each in [2, 40] (default: the scene's, "
                                 "12,12 unless its [plate] gives basis; Plate.basis): raise it when a plate drop says "
                                 "its basis is not converged")
 

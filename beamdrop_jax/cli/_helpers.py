@@ -141,7 +141,10 @@ def _range(unit, lo, hi, lo_open=False):
 
 
 def _basis(text):
-    """'nx,ny' -> (nx, ny), each an int in [4, 40]."""
+    """'nx,ny' -> (nx, ny), each an int in `Plate.basis`'s range (`BASIS_LIMITS`)."""
+    from .._board.plate import BASIS_LIMITS
+
+    lo, hi = BASIS_LIMITS
     parts = text.split(",")
     try:
         if len(parts) != 2:
@@ -149,8 +152,8 @@ def _basis(text):
         nx, ny = (int(p) for p in parts)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: write two whole numbers 'NX,NY', e.g. 20,20") from None
-    if not (4 <= nx <= 40 and 4 <= ny <= 40):
-        raise argparse.ArgumentTypeError(f"{text!r}: each of NX, NY must be in [4, 40]")
+    if not (lo <= nx <= hi and lo <= ny <= hi):
+        raise argparse.ArgumentTypeError(f"{text!r}: each of NX, NY must be in [{lo}, {hi}]")
     return nx, ny
 
 
