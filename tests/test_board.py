@@ -245,6 +245,9 @@ def test_record_csv(tmp_path):
         (lambda: bd.Numerics(method="rk4"), "Numerics.method"),
         (lambda: bd.Numerics(solver="Euler"), "Numerics.solver"),
         (lambda: bd.Numerics(n_modes=0), "Numerics.n_modes"),
+        # The field the user set, not min_modes (which once took the blame with "valid: an int in [1, 3]").
+        (lambda: bd.Numerics(max_modes=3), r"Numerics.max_modes = 3; valid: an int >= Numerics.min_modes = 4 .*"
+                                           r"Numerics\(max_modes=3, min_modes=3\)"),
         (lambda: bd.Numerics(stretching=True), "stretching"),
         (lambda: bd.Numerics(window=-1.0), "Numerics.window"),
         (lambda: bd.board_response(bd.Board(), bd.Record([0, 1e-3], [0, 1], [0, 1])), "diffrax"),

@@ -102,7 +102,10 @@ class Numerics(eqx.Module):
             as_int(self.n_modes, "Numerics.n_modes", 1, 512)
         if self.max_modes is not None:
             as_int(self.max_modes, "Numerics.max_modes", 2, 512)
-        as_int(self.min_modes, "Numerics.min_modes", 1, self.max_modes or 512)
+        as_int(self.min_modes, "Numerics.min_modes", 1, 512)
+        if self.max_modes is not None and self.max_modes < self.min_modes:
+            bad("max_modes", self.max_modes, f"an int >= Numerics.min_modes = {self.min_modes} (to allow fewer "
+                f"modes, lower min_modes with it: Numerics(max_modes={self.max_modes}, min_modes={self.max_modes}))")
         for name in ("points_per_period", "x_points_per_mode", "candidates", "max_steps", "max_impacts",
                      "landing_steps"):
             as_int(getattr(self, name), f"Numerics.{name}", 1)
