@@ -3,6 +3,7 @@ results. Every bad input must be one line on stderr with exit status 2, naming w
 
 import json
 import math
+import re
 
 import jax
 import numpy as np
@@ -372,8 +373,11 @@ def test_montecarlo_rejects_invalid_base_scene_and_summaries_never_crash():
     scene = bd.Scene.default()
     with pytest.raises(ValueError, match="varies no field"):
         bd.montecarlo(scene, 8, jax.random.PRNGKey(0), bd.DropDistribution(orientation=None), progress=False)
-    bad = scene.replace(**{"board.axial_force": 0.0})
-    bad = jax.tree_util.tree_map(lambda v: v, bad)
+    # A seed where a key belongs (JAX's own message said only that the key data lacks a shape), and two keys.
+    for key, given in ((0, "key = 0;"), (jax.random.split(jax.random.PRNGKey(0)), "shape (2, 2)")):
+        with pytest.raises(TypeError, match=re.escape(given) + ".*valid: one JAX random key, e.g. "
+                                                                "jax.random.PRNGKey"):
+            bd.montecarlo(scene, 8, key, progress=False)
     import equinox as eqx
 
     bad = eqx.tree_at(lambda s: s.contact.restitution, scene, 1.5)

@@ -131,6 +131,7 @@ class DropDistribution(eqx.Module):
 
     def sample(self, scene: Scene, n: int, key) -> Scene:
         """n scenes: the varied fields get a leading axis n, the others stay as in `scene`."""
+        _check_key(key)
         out = scene
         # The plane's seven fields keep the streams they had before the box's fields joined them (the same key,
         # the same drops); each box field draws from a key of its own.
@@ -157,6 +158,19 @@ class DropDistribution(eqx.Module):
                 values = a * jnp.exp(b * jax.random.normal(k, (n,), dtype=float_dtype()))
             out = out.replace(check_ranges=False, **{path: values})
         return out
+
+
+def _check_key(key) -> None:
+    """A `TypeError` naming `key` unless it is one JAX random key: `jax.random.key(seed)` or the raw uint32 pair
+    of `jax.random.PRNGKey(seed)` (a seed itself, an int, is not: JAX's own message says only that key data lacks
+    a shape)."""
+    dtype, shape = getattr(key, "dtype", None), getattr(key, "shape", None)
+    typed = dtype is not None and jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key) and shape == ()
+    raw = dtype == jnp.uint32 and shape == (2,)
+    if not (typed or raw):
+        given = f"an array of shape {shape} and dtype {dtype}" if shape is not None else repr(key)
+        raise TypeError(f"key = {given}; valid: one JAX random key, e.g. jax.random.PRNGKey(0) or jax.random.key(0) "
+                        "(a seed, an int, is not a key)")
 
 
 def sample_axes(samples: Scene, scene: Scene) -> Scene:
