@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import beamdrop_jax as bd
+from beamdrop_jax._common.memo import tree_digest
 
 
 def _first_strike(scene=None):
@@ -395,7 +396,7 @@ def test_near_flat_band_reads_a_table_over_orientation(monkeypatch):
     # Over uniform orientations the weights come from the weights at the nodes where those are 0 on both sides:
     # equal to each drop's own.
     spread = np.asarray(bd.DropDistribution().sample(scene, 4096, key).drop.orientation)
-    np.testing.assert_array_equal(mc._orientation_weights(scene, mc._scene_key(scene), spread),
+    np.testing.assert_array_equal(mc._orientation_weights(scene, tree_digest(scene), spread),
                                   np.asarray(mc.landing_weights(scene, 4096, key)))
     # Other distributions solve each band drop (the count the refusal names).
     heights = dataclasses.replace(near, height=("uniform", 1.4, 1.6))

@@ -656,6 +656,36 @@ def test_converged_means_the_gauges_agree_with_a_converged_run():
     assert any("not converged: the Ritz basis's error" in n and "raise Plate.basis" in n for n in notes), notes
 
 
+def test_a_plates_modes_are_solved_once_for_its_drops(monkeypatch):
+    """Drops of one plate share its two eigensolves (kept by the plate's values, `kept_modes`) and give the numbers
+    of a program that solves them itself (a user's jit around the call, where nothing is kept); a plate with a
+    mount moved gets modes of its own."""
+    from beamdrop_jax._response import surface
+
+    solves = []
+    solve = surface._plate_eigen_jit
+    monkeypatch.setattr(surface, "_plate_eigen_jit", lambda plate: solves.append(plate) or solve(plate))
+    surface.forget_modes()
+    plate = bd.load_scene("jesd22-board").board
+    motion = bd.HalfSine.from_peak(*bd.JESD22_B111_CONDITION_B)
+    gauges = ((0.066, 0.0), (0.03, 0.02))
+    first = bd.board_response(plate, motion, gauges=gauges)
+    again = bd.board_response(dataclasses.replace(plate), bd.HalfSine.from_peak(500 * 9.80665, 1e-3), gauges=gauges)
+    assert len(solves) == 1 and float(again.peak.strain) < float(first.peak.strain)
+    surface.forget_modes()
+    inside = jax.jit(lambda: bd.board_response(plate, motion, gauges=gauges).gauges.peak_strain)()
+    assert not surface._MODES  # solved inside the user's program, not kept
+    # Two programs round differently: their Newton refinements of the peak times stop 5e-10 apart.
+    np.testing.assert_allclose(np.asarray(first.gauges.peak_strain), np.asarray(inside), rtol=1e-8)
+    moved = eqx.tree_at(lambda p: p.mounts, plate, plate.mounts.at[0, 0].add(2e-3))
+    other = bd.board_response(moved, motion, gauges=gauges)
+    assert len(solves) == 3 and len(surface._MODES) == 1
+    assert np.max(np.abs(np.asarray(other.gauges.peak_strain) / np.asarray(first.gauges.peak_strain) - 1)) > 1e-3
+    np.testing.assert_array_equal(np.asarray(bd.board_response(plate, motion, gauges=gauges).gauges.peak_strain),
+                                  np.asarray(first.gauges.peak_strain))
+    assert len(solves) == 4 and len(surface._MODES) == 2
+
+
 def test_ritz_frequencies_never_rise_as_the_basis_grows():
     """Rayleigh-Ritz gives upper bounds: the Legendre bases are nested (24 x 24 within 28 x 28 within 32 x 32), and
     so are their combinations that vanish at the mounts, so each of the lowest 48 eigenvalues of the JESD22 board

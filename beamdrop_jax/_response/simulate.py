@@ -25,21 +25,22 @@ from .line import _respond_line
 from .numerics import Numerics
 from .results import Response
 from .setup import _gauge_points, _raise_if_window, support_motion
-from .surface import _respond_plate
+from .surface import _respond_plate, kept_modes
 
 
-def _respond(board, motion, numerics: Numerics, flags, gauges=None) -> Response:
-    """The board's response to its supports' motion; the peak search follows the board's domain."""
+def _respond(board, motion, numerics: Numerics, flags, gauges=None, modes=None) -> Response:
+    """The board's response to its supports' motion; the peak search follows the board's domain. `modes`: a
+    plate's `kept_modes`, or None."""
     if board.SURFACE:
-        return _respond_plate(board, motion, numerics, flags, gauges)
+        return _respond_plate(board, motion, numerics, flags, gauges, modes)
     if gauges is not None:
         raise ValueError("gauges are read on plates (bd.Plate); a beam's strain along x is in bd.response_fields")
     return _respond_line(board, motion, numerics, flags)
 
 
 @filter_jit
-def _board_response_jit(board, motion, numerics, gauges):
-    return _respond(board, motion, numerics, jnp.int32(0), gauges)
+def _board_response_jit(board, motion, numerics, gauges, modes=None):
+    return _respond(board, motion, numerics, jnp.int32(0), gauges, modes)
 
 
 def board_response(board: AbstractBoard, motion, numerics: Numerics | None = None, gauges=None) -> Response:
@@ -56,7 +57,7 @@ def board_response(board: AbstractBoard, motion, numerics: Numerics | None = Non
         extra = " (it has no closed form)" if "closed_form" not in motion.METHODS else ""
         raise ValueError(f"a {type(motion).__name__} support motion needs Numerics(method={methods}){extra}")
     board.check_gauges(points := _gauge_points(gauges))
-    response = _board_response_jit(board, motion, numerics, points)
+    response = _board_response_jit(board, motion, numerics, points, kept_modes(board))
     if is_concrete(board, motion, response.flags) and int(response.flags):
         board.__check_init__()
         board.raise_if_outside_theory(response.flags, "board_response")
@@ -107,12 +108,12 @@ def landing_drive(scene: Scene, numerics: Numerics, landing: str = "rigid"):
             weight, box)
 
 
-def _simulate(scene: Scene, numerics: Numerics, gauges=None, landing: str = "rigid") -> Response:
+def _simulate(scene: Scene, numerics: Numerics, gauges=None, landing: str = "rigid", modes=None) -> Response:
     """One drop. `landing` (static): `"rigid"` or `"compliant"` (`landing_drive`), or `"either"`: both, the
-    answer picked by the compliant landing's weight (traced scenes)."""
+    answer picked by the compliant landing's weight (traced scenes). `modes`: the board's `kept_modes`, or None."""
     def respond(drop, kind):
         motion, used, impacts, hit, flags, weight, box = landing_drive(drop, numerics, kind)
-        response = _respond(scene.board, motion, used, combine(scene_flags(scene), flags), gauges)
+        response = _respond(scene.board, motion, used, combine(scene_flags(scene), flags), gauges, modes)
         return response, (impacts, hit, weight, box)
 
     response, (impacts, hit, weight, box) = respond(scene, "rigid" if landing == "either" else landing)
@@ -208,13 +209,13 @@ def _raise_if_not_from_rest(scene: Scene, numerics: Numerics) -> None:
                              "= 0, or Numerics.from_rest = False")
 
 
-def _compliant_eagerly(scene: Scene, numerics: Numerics, points) -> Response:
+def _compliant_eagerly(scene: Scene, numerics: Numerics, points, modes) -> Response:
     """A concrete drop on the compliant landing's path: solved first with a step limit of `FIRST_LANDING_STEPS`
     (a smaller buffer), again with `numerics.landing_steps` where that is not enough; the same numbers."""
     first = dataclasses.replace(numerics, landing_steps=min(FIRST_LANDING_STEPS, numerics.landing_steps))
-    response = _simulate_jit(scene, first, points, landing="compliant")
+    response = _simulate_jit(scene, first, points, landing="compliant", modes=modes)
     if first.landing_steps < numerics.landing_steps and int(response.flags) & Flag.SOLVER_FAILED:
-        response = _simulate_jit(scene, numerics, points, landing="compliant")
+        response = _simulate_jit(scene, numerics, points, landing="compliant", modes=modes)
     return response
 
 
@@ -238,16 +239,17 @@ def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Res
     _raise_if_out_of_plane(scene, numerics)
     _raise_if_not_from_rest(scene, numerics)
     kind = _landing_kind(scene, numerics)
+    modes = kept_modes(scene.board)
     if kind == "compliant" and is_concrete(scene):
-        response = _compliant_eagerly(scene, numerics, points)
+        response = _compliant_eagerly(scene, numerics, points, modes)
     else:
-        response = _simulate_jit(scene, numerics, points, landing=kind)
+        response = _simulate_jit(scene, numerics, points, landing=kind, modes=modes)
     if kind == "rigid" and scene.contact.model == "auto" and numerics.max_impacts == 1:
         wanted = response.landing_weight
         if not is_concrete(wanted):  # a concrete scene closed over by a user's jit
-            response = _simulate_jit(scene, numerics, points, landing="either")
+            response = _simulate_jit(scene, numerics, points, landing="either", modes=modes)
         elif float(wanted) > 0:  # strikes overlap: the compliant landing
-            response = _compliant_eagerly(scene, numerics, points)
+            response = _compliant_eagerly(scene, numerics, points, modes)
     if is_concrete(scene, response.flags) and int(response.flags):
         _raise_eagerly(scene, numerics, response.flags, response.impacts, "simulate")
     return response

@@ -1,5 +1,6 @@
 """Peaks of a board whose domain is a surface (a plate): principal surface strain and stress, deflection over (x, y), strain gauges."""
 
+import collections
 import dataclasses
 import math
 
@@ -11,7 +12,9 @@ from .._board.base import Gauges, Peak
 from .._board.plate import surface_strain, surface_stress
 from .._board.plate_checks import blank_readings, response_flags
 from .._board.search import candidate_times, field_on_grid, find_plate_peak, plate_envelopes, plate_starts, ring_points
-from .._common.checks import Flag, combine, flag_if, float_dtype
+from .._common.checks import Flag, combine, flag_if, float_dtype, is_concrete
+from .._common.compile import filter_jit
+from .._common.memo import keep, tree_digest
 from .closed_form import ClosedFormModes
 from .numerics import Numerics
 from .results import Convergence, Response
@@ -146,24 +149,59 @@ def plate_numerics(plate, numerics: Numerics) -> Numerics:
     return dataclasses.replace(numerics, n_modes=numerics.computed_modes)
 
 
-def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None) -> Response:
+def plate_eigen(plate):
+    """Every mode of the plate's Ritz basis and every mode of the basis check's (`Plate.refined`): two
+    eigensolves, `(PlateModes, PlateModes)`. The answer keeps the lowest `Numerics.computed_modes` of the first;
+    the convergence check reads the rest and the second."""
+    finer = plate.refined()
+    return plate.modes(plate.basis[0] * plate.basis[1]), finer.modes(finer.basis[0] * finer.basis[1])
+
+
+_plate_eigen_jit = filter_jit(plate_eigen)
+_KEPT_MODES = 4
+"""How many plates' `plate_eigen` `kept_modes` keeps in memory (the most recently used)."""
+_MODES: "collections.OrderedDict[str, tuple]" = collections.OrderedDict()
+
+
+def kept_modes(board):
+    """`plate_eigen(board)` of a concrete plate, kept for the last `_KEPT_MODES` plates asked for, so that another
+    drop of the same plate skips its two eigensolves (on the JESD22 board, 140 and 252 functions, a third of a
+    drop); None for a beam, a traced plate, or one asked for inside a trace (the program solves them then)."""
+    if not board.SURFACE or not is_concrete(board):
+        return None
+    key = tree_digest(board) + str(float_dtype())
+    modes = _MODES.get(key)
+    if modes is None:
+        modes = _plate_eigen_jit(board)
+        if not is_concrete(modes):  # a concrete plate closed over by a user's jit: staged there, not kept
+            return None
+    return keep(_MODES, key, modes, _KEPT_MODES)
+
+
+def forget_modes() -> None:
+    """Drop every plate's modes `kept_modes` keeps."""
+    _MODES.clear()
+
+
+def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None, modes=None) -> Response:
+    """`modes`: `plate_eigen(plate)` when the caller has them (`kept_modes`), else solved here."""
     if numerics.stretching:
         raise ValueError("Numerics.stretching = True models pinned beams only, not plates")
     numerics = plate_numerics(plate, numerics)
     tiny = jnp.finfo(float_dtype()).tiny
+    full, finer = plate_eigen(plate) if modes is None else modes
+    M = numerics.computed_modes
     if numerics.method == "closed_form":
         # Every mode of the Ritz basis from one eigensolve: the answer keeps the lowest computed_modes, the check
         # adds the rest at the peak and the gauges.
-        full = plate.modes(plate.basis[0] * plate.basis[1])
-        M = numerics.computed_modes
         S = _setup(plate, motion, numerics, with_check=False, model=full.first(M))._replace(check=jnp.int32(full.n_free))
         mask = jnp.ones(M, dtype=float_dtype())
         found = _plate_searches(S, plate, numerics, S.modes, ("stress", "strain", "deflection"), mask)
         stress, strain, deflection = (jax.tree_util.tree_map(lambda v: v[i], found) for i in range(3))
         read = None if gauges is None else _gauges(plate, S, S.modes, mask, gauges)
-        modes_error, gauges_error, basis_error = _exact_errors(plate, motion, full, M, stress, read, tiny)
+        modes_error, gauges_error, basis_error = _exact_errors(plate, motion, full, finer, M, stress, read, tiny)
     else:
-        S = _setup(plate, motion, numerics, with_check=True)
+        S = _setup(plate, motion, numerics, with_check=True, model=full.first(M))
         mask = (S.k <= S.used).astype(float_dtype())
         check_mask = (S.k <= S.check).astype(float_dtype())
         found = _plate_searches(S, plate, numerics, S.modes, ("stress", "strain", "deflection"), mask,
@@ -174,7 +212,7 @@ def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None) -> Res
         gauges_error = jnp.zeros_like(modes_error) if read is None else jnp.max(
             jnp.abs(_readings(plate, S.modal, S.modes, check_mask, read) - read.peak_strain)
             / jnp.maximum(read.peak_strain, tiny))
-        basis_error = _basis_error(plate, motion, numerics, S, stress, read, tiny)
+        basis_error = _basis_error(plate, motion, numerics, S, finer.first(M), stress, read, tiny)
     modes = S.modes
     window_error = (_after_window(plate, S, mask, read) if read is not None and numerics.method == "closed_form"
                     and S.modal.windows == 1 else jnp.zeros_like(modes_error))
@@ -249,7 +287,7 @@ def _exact_response(plate, motion, modes):
     return value
 
 
-def _exact_errors(plate, motion, full, used: int, stress, read, tiny):
+def _exact_errors(plate, motion, full, finer_full, used: int, stress, read, tiny):
     """(modes, gauges, basis) of `Convergence` for a plate under half-sine pulses, from the exact response of every
     mode at the peak's point and time and the gauges' (few points, so all the modes cost little):
 
@@ -260,9 +298,8 @@ def _exact_errors(plate, motion, full, used: int, stress, read, tiny):
     - basis: the change from all the modes of this basis to all the modes of one 4 functions larger each way,
       extrapolated to this basis's error (`BASIS_ORDER`). Whole responses are compared: the k-th mode of two bases
       need not be the same mode high in the spectrum."""
-    finer = plate.refined()
-    here, there = _exact_response(plate, motion, full), _exact_response(finer, motion, finer.modes(
-        finer.basis[0] * finer.basis[1]))
+    finer = finer_full.plate
+    here, there = _exact_response(plate, motion, full), _exact_response(finer, motion, finer_full)
     points = [stress.x[None], stress.y[None], stress.t[None]]
     if read is not None:
         points = [jnp.concatenate([a, b]) for a, b in zip(points, (read.x, read.y, read.peak_time))]
@@ -288,13 +325,13 @@ def _richardson(plate, finer) -> float:
     return 1.0 / (1.0 - (n / m) ** BASIS_ORDER) if m > n else 1.0
 
 
-def _basis_error(plate, motion, numerics: Numerics, S: _Setup, stress, read, tiny):
+def _basis_error(plate, motion, numerics: Numerics, S: _Setup, finer_modes, stress, read, tiny):
     """The relative change of the peak stress (at its point and time) and of the gauges' peak strains (at theirs)
     with a Ritz basis 4 functions larger each way, extrapolated to the error of this basis (`BASIS_ORDER`): the peak
     is stationary there, so the change at the same point measures the basis's error to first order without a second
     search."""
-    finer = plate.refined()
-    F = _setup(finer, motion, numerics, with_check=False)
+    finer = finer_modes.plate
+    F = _setup(finer, motion, numerics, with_check=False, model=finer_modes)
     mask = (F.k <= S.used).astype(float_dtype())
     q = F.modal(stress.t) * mask
     _, kxx, kyy, kxy = (jnp.sum(q * v) for v in F.modes.shapes(stress.x, stress.y))

@@ -9,7 +9,6 @@ of them.
 
 import collections
 import dataclasses
-import hashlib
 import math
 
 import equinox as eqx
@@ -29,6 +28,7 @@ from .._response.landing_path import FIRST_LANDING_STEPS, compliant_weight
 from .._response.simulate import drop_motion
 from .._response.superposition import superposes, superposition_table, table_numerics, table_peaks
 from .._common.compile import filter_jit
+from .._common.memo import keep, tree_digest
 from .._board.base import natural_frequencies
 from .._common.report import summary_text
 from .distribution import _FIELDS, _PLANE_FIELDS, DropDistribution, sample_axes
@@ -442,7 +442,7 @@ def _landings(scene, samples, axes, outputs, numerics, progress, max_landings):
     if scene.contact.model == "rigid" or numerics.max_impacts > 1:
         return np.zeros(n)
     orientation_only = _only_orientation_varies(scene, axes)
-    key = _scene_key(scene) if orientation_only else None
+    key = tree_digest(scene) if orientation_only else None
     orientation = np.asarray(samples.drop.orientation)
     weight = (_orientation_weights(scene, key, orientation) if orientation_only
               else np.asarray(_weights(samples, axes, _from_rest(scene, samples))))
@@ -507,8 +507,8 @@ def _orientation_weights(scene: Scene, key: str, orientation) -> np.ndarray:
     the weights at the nodes are kept for the last `_KEPT_TABLES` scenes. The rigid law and the next strike time
     of every drop took 3 us each on 2 cores; only about one drop in 15 of uniform orientations needs them."""
     grid = _GRID_WEIGHTS.get(key)
-    grid = _keep(_GRID_WEIGHTS, key, _weights_at(scene, np.arange(_node_count()) * ORIENTATION_STEP)
-                 if grid is None else grid)
+    grid = keep(_GRID_WEIGHTS, key, _weights_at(scene, np.arange(_node_count()) * ORIENTATION_STEP)
+                if grid is None else grid, _KEPT_TABLES)
     k = np.floor(np.mod(orientation, 2 * math.pi) / ORIENTATION_STEP).astype(int) % grid.size
     near = np.flatnonzero((grid[k] > 0) | (grid[(k + 1) % grid.size] > 0))
     weight = np.zeros(orientation.shape[0])
@@ -563,19 +563,6 @@ _KEPT_TABLES = 4
 """How many scenes' `orientation_table`s (and boards' superposition tables) `montecarlo` keeps in memory (the most
 recently used), so that another run on the same scene solves only the nodes they lack and builds no table."""
 _TABLES: "collections.OrderedDict[str, OrientationTable]" = collections.OrderedDict()
-
-
-def _scene_key(scene) -> str:
-    """A digest of every field of `scene` (or any pytree: values, shapes, dtypes and static fields)."""
-    leaves, treedef = jax.tree_util.tree_flatten(scene)
-    digest = hashlib.sha256(str(treedef).encode())
-    for leaf in leaves:
-        value = np.asarray(leaf)
-        digest.update(f"{value.dtype}{value.shape}".encode())
-        digest.update(value.tobytes())
-    return digest.hexdigest()
-
-
 _SUPERPOSED: "collections.OrderedDict[str, object]" = collections.OrderedDict()
 
 
@@ -584,19 +571,10 @@ def _kept_superposition(scene: Scene, numerics: Numerics, durations, rolls: bool
     boards, pulses and numerics asked for: another run on the same board reuses it (a plate's table takes about a
     second: 130 searches on the JESD22 board; over the sphere, 289)."""
     pulse = scene.contact.duration if durations is None else np.asarray(durations, dtype=np.float64)
-    key = _scene_key((scene.board, pulse)) + repr((numerics, rolls))
+    key = tree_digest((scene.board, pulse)) + repr((numerics, rolls))
     table = _SUPERPOSED.get(key)
-    return _keep(_SUPERPOSED, key, superposition_table(scene, numerics, durations=durations, rolls=rolls)
-                 if table is None else table)
-
-
-def _keep(kept: collections.OrderedDict, key: str, value):
-    """`value` stored under `key` as the most recently used of `kept`, which holds the last `_KEPT_TABLES`."""
-    kept.pop(key, None)
-    kept[key] = value
-    while len(kept) > _KEPT_TABLES:
-        kept.popitem(last=False)
-    return value
+    return keep(_SUPERPOSED, key, superposition_table(scene, numerics, durations=durations, rolls=rolls)
+                if table is None else table, _KEPT_TABLES)
 
 
 def forget_tables() -> None:
@@ -619,7 +597,7 @@ def _kept_table(scene: Scene, key: str, nodes, progress: bool) -> OrientationTab
     if missing.size:
         new = orientation_table(scene, missing, progress)
         kept = new if kept is None else kept.merged(new)
-    return _keep(_TABLES, key, kept)
+    return keep(_TABLES, key, kept, _KEPT_TABLES)
 
 
 def orientation_table(scene: Scene, nodes=None, progress: bool = False) -> OrientationTable:
