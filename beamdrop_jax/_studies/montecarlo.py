@@ -27,6 +27,7 @@ from .._impact.kinematics import housing_impact
 from .._response.landing_path import FIRST_LANDING_STEPS, compliant_weight
 from .._response.simulate import drop_motion
 from .._response.superposition import superposes, superposition_table, table_numerics, table_peaks
+from .._response.surface import forget_modes
 from .._common.compile import filter_jit
 from .._common.memo import keep, tree_digest
 from .._board.base import natural_frequencies
@@ -578,10 +579,12 @@ def _kept_superposition(scene: Scene, numerics: Numerics, durations, rolls: bool
 
 
 def forget_tables() -> None:
-    """Drop every table `montecarlo` keeps (superposition tables, orientation tables and the grid's landing weights):
-    the next call builds what it needs, as a first call does (`beamdrop bench` times whole calls so)."""
+    """Drop every table `montecarlo` keeps (superposition tables, orientation tables and the grid's landing weights)
+    and the plates' modes that `simulate` keeps: the next call builds what it needs, as a first call does
+    (`beamdrop bench` times whole calls so)."""
     for kept in (_SUPERPOSED, _TABLES, _GRID_WEIGHTS):
         kept.clear()
+    forget_modes()
 
 
 def _missing_nodes(key: str, nodes) -> np.ndarray:
