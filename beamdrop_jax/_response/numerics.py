@@ -30,9 +30,10 @@ class Numerics(eqx.Module):
       narrow plates need modes well past the pulse's band: on the JESD22 board 48 (with `frequency_growth=1`,
       which keeps its time grid small).
     - `frequency_growth`: how the top computed mode's frequency grows with the mode count M, which sizes the time
-      grid: 2 (the default) for M^2 (a beam; a bound for any board), 1 for about 1.5 M (a plate on mounts, by
-      Weyl's law in two dimensions; the grid then allows 2 M + 8 periods, and a plate whose frequencies outgrow
-      it is flagged, `Flag.WINDOW_RANGE`).
+      grid: 2 for M^2 (a beam; a bound for any board), 1 for about 1.5 M (a plate on mounts, by Weyl's law in two
+      dimensions; the grid then allows 2 M + 8 periods, and a plate whose frequencies outgrow it is flagged,
+      `Flag.WINDOW_RANGE`). `None` (the default): 2, except that `simulate` and `board_response` give a concrete
+      plate 1 where its own top computed mode makes at most 2 M + 8 periods over the window (`plate_time_grid`).
     - `window`: time window (s); `None` is the pulse duration plus one fundamental period. With several impacts
       it is the window searched after each impact (the free vibration between impacts repeats with the
       fundamental period when the axial force is 0, so one period after each pulse holds the peak).

@@ -25,7 +25,7 @@ from .line import _respond_line
 from .numerics import Numerics
 from .results import Response
 from .setup import _gauge_points, _raise_if_window, support_motion
-from .surface import _respond_plate, kept_modes
+from .surface import _respond_plate, kept_modes, plate_time_grid
 
 
 def _respond(board, motion, numerics: Numerics, flags, gauges=None, modes=None) -> Response:
@@ -57,7 +57,10 @@ def board_response(board: AbstractBoard, motion, numerics: Numerics | None = Non
         extra = " (it has no closed form)" if "closed_form" not in motion.METHODS else ""
         raise ValueError(f"a {type(motion).__name__} support motion needs Numerics(method={methods}){extra}")
     board.check_gauges(points := _gauge_points(gauges))
-    response = _board_response_jit(board, motion, numerics, points, kept_modes(board))
+    modes = kept_modes(board)
+    if modes is not None and is_concrete(motion):
+        numerics = plate_time_grid(numerics, modes, motion.window_forcing())
+    response = _board_response_jit(board, motion, numerics, points, modes)
     if is_concrete(board, motion, response.flags) and int(response.flags):
         board.__check_init__()
         board.raise_if_outside_theory(response.flags, "board_response")
@@ -240,6 +243,7 @@ def simulate(scene: Scene, numerics: Numerics | None = None, gauges=None) -> Res
     _raise_if_not_from_rest(scene, numerics)
     kind = _landing_kind(scene, numerics)
     modes = kept_modes(scene.board)
+    numerics = plate_time_grid(numerics, modes, scene.contact.duration)
     if kind == "compliant" and is_concrete(scene):
         response = _compliant_eagerly(scene, numerics, points, modes)
     else:

@@ -192,6 +192,26 @@ def kept_modes(board):
     return keep(_MODES, key, modes, _KEPT_MODES)
 
 
+def plate_time_grid(numerics: Numerics, modes, forcing) -> Numerics:
+    """`numerics` with the time grid a concrete plate's own frequencies allow. Where `Numerics.frequency_growth` is
+    left None and the top computed mode (of the plate's `kept_modes`) makes at most 2 M + 8 periods over the window
+    (`forcing`, s, plus the fundamental period; or `Numerics.window`): `frequency_growth=1`, the grid of 2 M + 8
+    periods at `points_per_period` each (on the JESD22 board 161 times instead of 1057: its 16th mode is 19 times
+    its first; a quarter of a drop's time, peaks the same to 1e-11). Else unchanged: M^2 + 8 periods, a bound for
+    any board, which traced plates keep."""
+    if modes is None or numerics.frequency_growth is not None:
+        return numerics
+    M = numerics.computed_modes
+    omega2 = np.asarray(modes[0])
+    if M > omega2.shape[0]:  # too few functions for the modes asked: the program says so
+        return numerics
+    f1, f_top = np.sqrt(omega2[[0, M - 1]]) / (2 * math.pi)
+    span = numerics.window if numerics.window is not None else float(forcing) + 1.0 / f1
+    if f_top * span <= 2 * M + 8:  # also False for NaN and for a mechanism's f1 ~ 0
+        return dataclasses.replace(numerics, frequency_growth=1)
+    return numerics
+
+
 def forget_modes() -> None:
     """Drop every plate's modes `kept_modes` keeps."""
     _MODES.clear()
