@@ -274,11 +274,15 @@ def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None, modes=
     )
 
 
+_AFTER_WINDOW_POINTS = 8
+
+
 def _after_window(plate, S: _Setup, mask, read: Gauges):
     """`Convergence.window`: how much more a gauge reads over (window, 2 window] than its peak within the window,
-    relative (0 where it reads less), the largest over the gauges; on the window's own grid spacing, from the closed
-    form, which holds after the pulse too."""
-    later = S.window + S.t[1:]
+    relative (0 where it reads less), the largest over the gauges; on `_AFTER_WINDOW_POINTS` times per interval of
+    the window's grid (a grid maximum falls short of the peak by the square of the spacing: on the phone board's
+    grid of 161 times, 2.8e-4 of a 12 % rise), from the closed form, which holds after the pulse too."""
+    later = S.window + jnp.linspace(0.0, S.window, _AFTER_WINDOW_POINTS * (S.t.shape[0] - 1) + 1)[1:]
     scale, R = S.modal.grid_factors(jax.lax.stop_gradient(later))
     _, *curvatures = S.modes.shapes(read.x, read.y)
     strain = surface_strain(plate, *(field_on_grid(mask, (scale, R), v) for v in curvatures))
