@@ -688,6 +688,34 @@ def test_a_plates_modes_are_solved_once_for_its_drops(monkeypatch):
     assert len(solves) == 4 and len(surface._MODES) == 2
 
 
+def test_a_plate_drops_programs_solve_no_eigenproblem_with_its_modes_kept():
+    """With a plate's modes kept (`kept_modes`), the programs of its drops hold no eigensolve, no LAPACK call: not
+    the rigid law's, nor the compliant landing's (its window and its weight read the fundamental period from the
+    kept modes; before, each near-flat batch of an orientation table solved the plate again), nor the Newton
+    refinement's 3 x 3 steps (Jacobi rotations). A user's jit around a plate drop on "auto" traces both paths and
+    picks one by the landing's weight: it traces (the two paths' convergence records once differed in a static
+    field, a pytree error)."""
+    import re
+
+    from beamdrop_jax._response.simulate import _simulate
+    from beamdrop_jax._response.surface import kept_modes, plate_time_grid
+
+    scene = bd.load_scene("jesd22-board")
+    scene = eqx.tree_at(lambda s: (s.contact, s.drop.orientation), scene,
+                        (scene.contact.with_model("auto"), jnp.asarray(1e-3)))
+    modes = kept_modes(scene.board)
+    numerics = plate_time_grid(bd.Numerics(), modes, scene.contact.duration)
+    for landing in ("rigid", "compliant", "either"):
+        program = eqx.filter_jit(lambda s, m: _simulate(s, numerics, None, landing, m).peak.strain)
+        text = program.lower(scene, modes).as_text()
+        assert not re.findall(r"lapack\w*", text), landing
+        assert "lapack" in eqx.filter_jit(lambda s: _simulate(s, numerics, None, landing).peak.strain).lower(
+            scene).as_text()  # the check can fail: without the kept modes the program solves them
+    strain = jax.eval_shape(jax.jit(lambda o: bd.simulate(eqx.tree_at(lambda s: s.drop.orientation, scene, o))
+                                    .peak.strain), jnp.asarray(1e-3))
+    assert strain.shape == () and strain.dtype == jnp.float64
+
+
 def test_ritz_frequencies_never_rise_as_the_basis_grows():
     """Rayleigh-Ritz gives upper bounds: the Legendre bases are nested (24 x 24 within 28 x 28 within 32 x 32), and
     so are their combinations that vanish at the mounts, so each of the lowest 48 eigenvalues of the JESD22 board

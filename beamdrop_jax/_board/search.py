@@ -42,6 +42,36 @@ def stop_gradient(tree):
     return jax.tree_util.tree_map(lambda v: jax.lax.stop_gradient(v) if eqx.is_inexact_array(v) else v, tree)
 
 
+_JACOBI_SWEEPS = 6  # cyclic sweeps: Jacobi converges quadratically, a 3 x 3 matrix to round-off in 4 or 5
+
+
+def symmetric_eigen3(A: Float[Array, "3 3"]) -> tuple[Float[Array, " 3"], Float[Array, "3 3"]]:
+    """Eigenvalues (unsorted) and eigenvectors (columns) of a symmetric 3 x 3 matrix by cyclic Jacobi rotations, a
+    fixed number of sweeps on its entries: elementwise arithmetic that XLA fuses, where `jnp.linalg.eigh` calls
+    LAPACK on CPU, whose BLAS threads then spin and take cores from the threads solving near-flat landings. For
+    the Newton refinement, whose steps are not differentiated (the maximiser enters under `stop_gradient`)."""
+    a = {(i, j): A[i, j] for i in range(3) for j in range(i, 3)}
+    v = {(i, j): jnp.asarray(float(i == j), A.dtype) for i in range(3) for j in range(3)}
+    for _ in range(_JACOBI_SWEEPS):
+        for p, q, r in ((0, 1, 2), (0, 2, 1), (1, 2, 0)):
+            apq = a[p, q]
+            nonzero = apq != 0
+            theta = jnp.clip((a[q, q] - a[p, p]) / (2.0 * jnp.where(nonzero, apq, 1.0)), -1e150, 1e150)
+            t = jnp.where(nonzero, jnp.where(theta >= 0, 1.0, -1.0) / (jnp.abs(theta) + jnp.sqrt(theta**2 + 1.0)),
+                          0.0)
+            c = 1.0 / jnp.sqrt(t**2 + 1.0)
+            s = t * c
+            rp, rq = tuple(sorted((r, p))), tuple(sorted((r, q)))
+            arp, arq = a[rp], a[rq]
+            a[p, p], a[q, q], a[p, q] = a[p, p] - t * apq, a[q, q] + t * apq, jnp.zeros_like(apq)
+            a[rp], a[rq] = c * arp - s * arq, s * arp + c * arq
+            for i in range(3):
+                vp, vq = v[i, p], v[i, q]
+                v[i, p], v[i, q] = c * vp - s * vq, s * vp + c * vq
+    return (jnp.stack([a[0, 0], a[1, 1], a[2, 2]], axis=-1),
+            jnp.stack([jnp.stack([v[i, j] for j in range(3)], axis=-1) for i in range(3)], axis=-2))
+
+
 def field_on_grid(coeffs, Q, shapes) -> Float[Array, "nx nt"]:
     """Field sum_k coeffs_k q_k(t) phi_k(x) on a grid, with the mode shapes `shapes` (nx, n) on the grid's x and
     the modal coordinates given as factors Q = (scale (n,), R (nt, n)), q_k(t_j) = scale_k R[j, k].
@@ -411,6 +441,35 @@ def _with_the_mounts(plate, px, py):
     return clip_to_plate(plate, *_over_mounts(plate, (px, py), move))
 
 
+# The Newton refinement's derivatives: central differences (h = 1/16 cell) from the measure on the 3 x 3 x 3 grid
+# around the point, from the modes' shapes at its 9 points in (x, y) and the modal coordinates at its 3 times (one
+# product of the two). The 19-point stencil evaluated point by point costs twice the shapes (their Legendre
+# recurrence) and six times the modal coordinates for the same numbers; nested automatic differentiation compiles
+# to several times the program.
+_H = 1.0 / 16
+_OFFSETS = np.array([-_H, 0.0, _H])
+_IN_PLANE = np.stack(np.meshgrid(_OFFSETS, _OFFSETS, indexing="ij"), axis=-1).reshape(9, 2)
+
+
+def _central_differences(f: Float[Array, "9 3"]):
+    """(value, gradient (3,), Hessian (3, 3)) at the centre of the grid of values `f` (x-major points by times)."""
+    f = f.reshape(3, 3, 3)
+
+    def at(*steps):  # the value at the centre + h * steps, (axis, +-1) per coordinate stepped
+        index = [1, 1, 1]
+        for axis, sign in steps:
+            index[axis] += sign
+        return f[tuple(index)]
+
+    plus = jnp.stack([at((i, 1)) for i in range(3)])
+    minus = jnp.stack([at((i, -1)) for i in range(3)])
+    H = jnp.diag((plus - 2 * at() + minus) / _H**2)
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        mixed = (at((i, 1), (j, 1)) - at((i, 1), (j, -1)) - at((i, -1), (j, 1)) + at((i, -1), (j, -1))) / (4 * _H**2)
+        H = H.at[i, j].set(mixed).at[j, i].set(mixed)
+    return at(), (plus - minus) / (2 * _H), H
+
+
 def find_plate_peak(
     measure: Callable,
     coeffs: Float[Array, " n"],
@@ -456,10 +515,6 @@ def find_plate_peak(
             px, py = _outside_mounts(plate_c, jnp.where(mount < 0, px, rx), jnp.where(mount < 0, py, ry))
         return px, py
 
-    def value(z, mount):
-        q = modal_c(z[2] * cell[2])
-        return measure(plate_c, *(jnp.sum(coeffs_c * q * s) for s in modes_c.shapes(*point(z, mount))))
-
     lo_plane = jnp.stack([0.0, -0.5, 0.0]) / cell
     hi_plane = jnp.stack([1.0, 0.5, window_c]) / cell
     circle_axes = np.array([True, True, False])  # on a circle the angle (and the unused coordinate) is free
@@ -476,23 +531,11 @@ def find_plate_peak(
         plane = jnp.clip(jnp.stack([px / plate_c.length / cell[0], py / plate_c.width / cell[1], z[2]]), lo, hi)
         return jnp.where(mount < 0, plane, z.at[1].set(0.0))
 
-    # Derivatives by central differences on a 19-point stencil (h = 1/16 cell): one batched evaluation, which
-    # compiles to a fraction of the program that nested automatic differentiation makes.
-    h = 1.0 / 16
-    eye = np.eye(3)
-    pairs = [(i, j) for i in range(3) for j in range(i + 1, 3)]
-    stencil = np.concatenate([np.zeros((1, 3)), eye, -eye] + [np.stack([eye[i] * a + eye[j] * b for a in (1, -1)
-                                                                        for b in (1, -1)]) for i, j in pairs]) * h
-
     def derivatives(z, mount):
-        f = jax.vmap(value, in_axes=(0, None))(z + stencil, mount)
-        f0, plus, minus = f[0], f[1:4], f[4:7]
-        g = (plus - minus) / (2 * h)
-        H = jnp.diag((plus - 2 * f0 + minus) / h**2)
-        for n, (i, j) in enumerate(pairs):
-            pp, pm, mp, mm = f[7 + 4 * n: 11 + 4 * n]
-            H = H.at[i, j].set((pp - pm - mp + mm) / (4 * h * h)).at[j, i].set((pp - pm - mp + mm) / (4 * h * h))
-        return f0, g, H
+        px, py = jax.vmap(lambda d: point(z.at[:2].add(d), mount))(_IN_PLANE)
+        q = jax.vmap(lambda d: modal_c((z[2] + d) * cell[2]))(_OFFSETS)  # (3 times, n)
+        weights = coeffs_c * q
+        return _central_differences(measure(plate_c, *(s @ weights.T for s in modes_c.shapes(px, py))))
 
     def refine_one(z0, f_grid, mount):
         lo, hi = bounds(mount)
@@ -516,7 +559,7 @@ def find_plate_peak(
             H_free = jnp.where(held[:, None] | held[None, :], -jnp.eye(3, dtype=H.dtype), H)
             # Newton along the Hessian's concave directions, half a cell uphill along the others (none where the
             # measure is flat: a plate bent uniformly across its width, a circle's unused coordinate).
-            w, V = jnp.linalg.eigh(H_free)
+            w, V = symmetric_eigen3(H_free)
             gv = V.T @ g_free
             uphill = 0.5 * jnp.sign(gv) * (jnp.abs(gv) > 1e-9 * jnp.abs(f_kept))
             u = V @ jnp.where(w < 0, -gv / jnp.where(w < 0, w, -1.0), uphill)

@@ -81,7 +81,7 @@ def _not_converged(board, response: Response) -> str:
         del failed["gauges" if failed["modes"] >= failed["gauges"] else "modes"]
     said, fixes = [], []
     # A check with fewer modes than the answer means the count hit its cap.
-    capped = int(response.check_modes) < int(response.n_modes) or (c is not None and c.check_cap)
+    capped = int(response.check_modes) < int(response.n_modes) or (c is not None and bool(c.check_cap))
     for name, value in sorted(failed.items(), key=lambda kv: -kv[1]):
         if name == "window":
             window = float(response.window)

@@ -47,12 +47,13 @@ BLEND = 2.0
 t2 >= (1 + BLEND) tau."""
 
 
-def landing_window(scene: Scene, numerics: Numerics):
+def landing_window(scene: Scene, numerics: Numerics, modal=None):
     """The board's peak window after the first touch, s: `Numerics.window`, or one contact duration plus the
-    board's fundamental period."""
+    board's fundamental period (of `modal`, the board's solved modes, where the caller has them: a plate's
+    eigensolve is then not repeated)."""
     if numerics.window is not None:
         return jnp.asarray(numerics.window, dtype=jnp.result_type(float))
-    return scene.contact.duration + fundamental_period(scene.board)
+    return scene.contact.duration + fundamental_period(scene.board if modal is None else modal)
 
 
 def next_strike_time(scene: Scene, hit: HousingImpact):
@@ -66,9 +67,9 @@ def next_strike_time(scene: Scene, hit: HousingImpact):
     return jnp.where(found, s, jnp.inf)
 
 
-def compliant_weight(scene: Scene, numerics: Numerics, hit: HousingImpact):
+def compliant_weight(scene: Scene, numerics: Numerics, hit: HousingImpact, modal=None):
     """The compliant landing's share of the supports' motion (0: the rigid law alone, 1: the landing alone), by
-    `Contact.model` (module notes)."""
+    `Contact.model` (module notes). `modal`: the board's solved modes, where the caller has them."""
     model = scene.contact.model
     if model == "rigid":
         return jnp.zeros_like(scene.contact.duration)
@@ -78,7 +79,7 @@ def compliant_weight(scene: Scene, numerics: Numerics, hit: HousingImpact):
     w = jnp.where(hit.flat, 1.0, _smoothstep(next_strike_time(scene, hit), tau))
     # A contact longer than the board's fundamental period loads it quasi-statically, and the sampled landing's
     # board solve would need more steps than it is given over such a window: the rigid law's closed form there.
-    slow = tau > fundamental_period(scene.board)
+    slow = tau > fundamental_period(scene.board if modal is None else modal)
     if scene.housing.is_box:
         w = box_compliant_weight(scene, numerics, w)
     return jnp.where(is_pulse(tau) & ~slow, w, 0.0)
@@ -218,11 +219,12 @@ def scene_landing(scene: Scene, window, max_steps: int = 16384, tolerance: float
                     atol=tolerance, max_steps=max_steps, through=True, kinks=kinks)
 
 
-def landing_motion(scene: Scene, numerics: Numerics, weight, rigid_jumps,
-                   samples: int = LANDING_SAMPLES) -> tuple[LandingMotion, Landing]:
+def landing_motion(scene: Scene, numerics: Numerics, weight, rigid_jumps, samples: int = LANDING_SAMPLES,
+                   modal=None) -> tuple[LandingMotion, Landing]:
     """The supports' normal acceleration through the compliant landing (`weight` of it, blended with the rigid
-    law's half-sine of jumps `rigid_jumps`), sampled on the peak window, and the `Landing`."""
-    window = landing_window(scene, numerics)
+    law's half-sine of jumps `rigid_jumps`), sampled on the peak window, and the `Landing`. `modal`: the board's
+    solved modes, where the caller has them (`landing_window`)."""
+    window = landing_window(scene, numerics, modal)
     landing = scene_landing(scene, window, numerics.landing_steps, numerics.landing_tolerance, numerics.landing_kinks)
     t = jnp.linspace(0.0, 1.0, samples) * window
     if scene.housing.is_box:

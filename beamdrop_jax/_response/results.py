@@ -39,7 +39,9 @@ class Convergence(eqx.Module):
     gauges: Float[Array, ""]
     basis: Float[Array, ""]
     window: Float[Array, ""]
-    check_cap: bool = eqx.field(static=True, default=False)
+    # An array, not a static field: where a traced drop picks between the rigid law's answer and the landing's
+    # (`_simulate`'s "either"), the two differ in it.
+    check_cap: Bool[Array, ""] = False
 
     def worst(self) -> tuple[str, float]:
         """(name, value) of the largest estimate (concrete results)."""

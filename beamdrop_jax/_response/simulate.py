@@ -25,7 +25,7 @@ from .line import _respond_line
 from .numerics import Numerics
 from .results import Response
 from .setup import _gauge_points, _raise_if_window, support_motion
-from .surface import _respond_plate, kept_modes, plate_time_grid
+from .surface import _eigen_of, _respond_plate, kept_modes, plate_time_grid
 
 
 def _respond(board, motion, numerics: Numerics, flags, gauges=None, modes=None) -> Response:
@@ -97,16 +97,17 @@ def _drop_motion(scene: Scene, numerics: Numerics):
     return motion, impacts, first, flags, box
 
 
-def landing_drive(scene: Scene, numerics: Numerics, landing: str = "rigid"):
+def landing_drive(scene: Scene, numerics: Numerics, landing: str = "rigid", modal=None):
     """What the board sees in a drop, by the landing path (`landing`, static): `(motion, numerics, impacts, first,
     flags, weight)`. `"rigid"`: `drop_motion`'s; `"compliant"`: the compliant landing's supports' acceleration,
     blended with the rigid law's by `compliant_weight` (`weight`): the landing solved with diffrax, the board's
-    response to its samples in closed form (`SampledModes`)."""
+    response to its samples in closed form (`SampledModes`). `modal`: the board's solved modes where the caller
+    has them (a plate's `kept_modes`), for its fundamental period."""
     motion, impacts, hit, flags, box = _drop_motion(scene, numerics)
     if landing == "rigid":
         return motion, numerics, impacts, hit, flags, jnp.zeros_like(scene.contact.duration), box
-    weight = compliant_weight(scene, numerics, hit)
-    blended, path = landing_motion(scene, numerics, weight, motion.first_jumps())
+    weight = compliant_weight(scene, numerics, hit, modal)
+    blended, path = landing_motion(scene, numerics, weight, motion.first_jumps(), modal=modal)
     return (blended, dataclasses.replace(numerics, method="diffrax"), impacts, hit, combine(flags, path.flags),
             weight, box)
 
@@ -114,19 +115,21 @@ def landing_drive(scene: Scene, numerics: Numerics, landing: str = "rigid"):
 def _simulate(scene: Scene, numerics: Numerics, gauges=None, landing: str = "rigid", modes=None) -> Response:
     """One drop. `landing` (static): `"rigid"` or `"compliant"` (`landing_drive`), or `"either"`: both, the
     answer picked by the compliant landing's weight (traced scenes). `modes`: the board's `kept_modes`, or None."""
+    modal = None if modes is None else _eigen_of(scene.board, modes)[0]
+
     def respond(drop, kind):
-        motion, used, impacts, hit, flags, weight, box = landing_drive(drop, numerics, kind)
+        motion, used, impacts, hit, flags, weight, box = landing_drive(drop, numerics, kind, modal)
         response = _respond(scene.board, motion, used, combine(scene_flags(scene), flags), gauges, modes)
         return response, (impacts, hit, weight, box)
 
     response, (impacts, hit, weight, box) = respond(scene, "rigid" if landing == "either" else landing)
     if landing == "either":
-        weight = compliant_weight(scene, numerics, hit)
+        weight = compliant_weight(scene, numerics, hit, modal)
         compliant, _ = respond(compliant_branch(scene, weight), "compliant")
         response = jax.tree_util.tree_map(lambda a, b: jnp.where(weight > 0, a, b), compliant, response)
     elif landing == "rigid" and scene.contact.model == "auto" and numerics.max_impacts == 1:
         # The rigid law's answer, and whether the drop wants the landing instead (`simulate` then runs that).
-        weight = compliant_weight(scene, numerics, hit)
+        weight = compliant_weight(scene, numerics, hit, modal)
     return eqx.tree_at(
         lambda r: (r.impulse, r.housing, r.impacts, r.landing_weight, r.box), response,
         (hit.impact, hit, impacts, weight, box), is_leaf=lambda x: x is None

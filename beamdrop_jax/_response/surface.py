@@ -251,7 +251,7 @@ def _respond_plate(plate, motion, numerics: Numerics, flags, gauges=None, modes=
     window_error = (_after_window(plate, S, mask, read) if read is not None and numerics.method == "closed_form"
                     and S.modal.windows == 1 else jnp.zeros_like(modes_error))
     convergence = Convergence(modes_error, gauges_error, basis_error, window_error,
-                              check_cap=numerics.method == "closed_form")
+                              check_cap=jnp.asarray(numerics.method == "closed_form"))
     # The modes' and the basis's errors add: the basis check measures the error of the answer's modes.
     error = jnp.maximum(jnp.maximum(modes_error, gauges_error) + basis_error, window_error)
     nonfinite = ~jnp.isfinite(stress.value) | ~jnp.isfinite(deflection.value)

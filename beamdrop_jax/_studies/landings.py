@@ -14,6 +14,7 @@ from .._common.compile import filter_jit
 from .._response.landing_path import FIRST_LANDING_STEPS
 from .._response.numerics import Numerics
 from .._response.simulate import _simulate
+from .._response.surface import kept_modes, plate_time_grid
 
 LANDING_BATCH = 8
 """Near-flat drops solved at once on the compliant path (each a diffrax solve of its landing)."""
@@ -24,18 +25,25 @@ def solve_landings(samples, axes, idx, progress: bool = False,
     """Peak stress, strain, deflection and flags of drops `idx` of a batch on the compliant landing's path
     (`simulate`'s, default numerics), `LANDING_BATCH` at a time: four arrays of len(idx). Each drop is solved first
     with `first` (`simulate`'s first step limit, `FIRST_LANDING_STEPS`: a smaller buffer), and again with the
-    default `Numerics.landing_steps` where that is not enough: the same numbers as `simulate`'s."""
+    default `Numerics.landing_steps` where that is not enough: the same numbers as `simulate`'s. A plate shared by
+    every drop is solved for its modes once, and its drops take the time grid its frequencies allow, as
+    `simulate`'s (`kept_modes`, `plate_time_grid`)."""
     idx = np.asarray(idx, dtype=int)
-    out = _solve_batches(samples, axes, idx, first, progress)
+    modes = None
+    if all(a is None for a in jax.tree_util.tree_leaves(axes.board, is_leaf=lambda a: a is None)):
+        modes = kept_modes(samples.board)
+        duration = np.asarray(samples.contact.duration)
+        first = plate_time_grid(first, modes, duration[idx].max() if duration.ndim else duration)
+    out = _solve_batches(samples, axes, idx, first, progress, modes)
     again = np.flatnonzero(out[3] & Flag.SOLVER_FAILED)
     last = dataclasses.replace(first, landing_steps=Numerics().landing_steps)
     if again.size and last.landing_steps > first.landing_steps:
-        for o, v in zip(out, _solve_batches(samples, axes, idx[again], last, progress)):
+        for o, v in zip(out, _solve_batches(samples, axes, idx[again], last, progress, modes)):
             o[again] = v
     return out
 
 
-def _solve_batches(samples, axes, idx, numerics: Numerics, progress: bool):
+def _solve_batches(samples, axes, idx, numerics: Numerics, progress: bool, modes=None):
     out = [np.empty(idx.size, dtype) for dtype in (float_dtype(),) * 3 + (np.int32,)]
     leaves, treedef = jax.tree_util.tree_flatten(samples)
     batched = [a is not None for a in treedef.flatten_up_to(axes)]
@@ -46,7 +54,7 @@ def _solve_batches(samples, axes, idx, numerics: Numerics, progress: bool):
         padded = np.concatenate([part, np.repeat(part[-1:], LANDING_BATCH - part.size)])  # one compiled shape
         chunk = treedef.unflatten([np.asarray(v)[padded] if b else v for v, b in zip(leaves, batched)])
         with jax.enable_x64(x64):
-            for o, v in zip(out, _compliant_peaks(chunk, axes, numerics)):
+            for o, v in zip(out, _compliant_peaks(chunk, axes, numerics, modes)):
                 o[start:start + part.size] = np.asarray(v)[:part.size]
 
     starts = range(0, idx.size, LANDING_BATCH)
@@ -73,9 +81,9 @@ def _landing_threads() -> int:
 
 
 @filter_jit
-def _compliant_peaks(samples, axes, numerics: Numerics):
+def _compliant_peaks(samples, axes, numerics: Numerics, modes=None):
     def one(s):
-        r = _simulate(s, numerics, None, "compliant")
+        r = _simulate(s, numerics, None, "compliant", modes)
         return r.peak.stress, r.peak.strain, r.peak.deflection, r.flags
 
     return jax.vmap(one, in_axes=(axes,))(samples)
