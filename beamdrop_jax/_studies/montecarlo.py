@@ -296,7 +296,7 @@ def montecarlo(
 
     **Near-flat landings** (`Contact.model` "auto", the default): the drops whose strikes overlap
     (`compliant_weight` > 0; about 6 % of uniform orientations) take the compliant landing's path, `simulate`'s
-    (`LANDING_SECONDS` a drop: 0.005 s on a beam, 0.05 s on a plate), and replace the fast path's peaks
+    (`LANDING_SECONDS` a drop: 0.005 s on a beam, 0.015 s on a plate), and replace the fast path's peaks
     (`MonteCarloResult.landing_weight` says which); "compliant" takes it for every drop, "rigid" for none. Where
     only the orientation of a plane section varies and the band's drops outnumber its nodes, an
     `orientation_table` (0.05 deg apart, within 5e-3 of each drop's solve; the last four scenes' stay in memory)
@@ -424,10 +424,10 @@ def _from_rest(scene: Scene, samples: Scene) -> bool:
                                                  (d.spin, d.horizontal_speed, d.side_speed, d.spin_x, d.spin_y)))
 
 
-LANDING_SECONDS = (0.005, 0.05)
+LANDING_SECONDS = (0.005, 0.015)
 """Measured cost of a near-flat drop on the compliant path, s, on a beam and on a plate (2 cores, after compiling:
-5.3-5.5 ms over 110 drops of the default scene, 46-47 ms over 127-139 drops of `jesd22-board` with
-`Contact.model` "auto", heights uniform on [0.5, 1.5] m)."""
+5.3-5.5 ms over 110 drops of the default scene, heights uniform on [0.5, 1.5] m; 8.9-15 ms per node of the
+`jesd22-board` plate's orientation table on `Contact.model` "auto", its modes solved once for all of them)."""
 
 
 def _minutes(seconds: float) -> str:
