@@ -692,9 +692,9 @@ def test_a_plate_drops_programs_solve_no_eigenproblem_with_its_modes_kept():
     """With a plate's modes kept (`kept_modes`), the programs of its drops hold no eigensolve, no LAPACK call: not
     the rigid law's, nor the compliant landing's (its window and its weight read the fundamental period from the
     kept modes; before, each near-flat batch of an orientation table solved the plate again), nor the Newton
-    refinement's 3 x 3 steps (Jacobi rotations). A user's jit around a plate drop on "auto" traces both paths and
-    picks one by the landing's weight: it traces (the two paths' convergence records once differed in a static
-    field, a pytree error)."""
+    refinement's 3 x 3 steps (Jacobi rotations), nor the build of its superposition table. A user's jit around a
+    plate drop on "auto" traces both paths and picks one by the landing's weight: it traces (the two paths'
+    convergence records once differed in a static field, a pytree error)."""
     import re
 
     from beamdrop_jax._response.simulate import _simulate
@@ -711,6 +711,16 @@ def test_a_plate_drops_programs_solve_no_eigenproblem_with_its_modes_kept():
         assert not re.findall(r"lapack\w*", text), landing
         assert "lapack" in eqx.filter_jit(lambda s: _simulate(s, numerics, None, landing).peak.strain).lower(
             scene).as_text()  # the check can fail: without the kept modes the program solves them
+    # Nor the superposition table's build for Monte-Carlo, nor its mode count.
+    from beamdrop_jax._response import superposition
+
+    table = superposition.table_numerics(scene)
+    directions = jnp.ones((4, 2))
+    build = eqx.filter_jit(superposition._build_plate.__wrapped__)
+    for kept, solves in ((modes, False), (None, True)):
+        text = build.lower(scene.board, scene.contact.duration, table, directions, 2, kept=kept).as_text()
+        assert ("lapack" in text) == solves
+    assert "lapack" not in eqx.filter_jit(superposition._modes_used.__wrapped__).lower(scene, modes).as_text()
     strain = jax.eval_shape(jax.jit(lambda o: bd.simulate(eqx.tree_at(lambda s: s.drop.orientation, scene, o))
                                     .peak.strain), jnp.asarray(1e-3))
     assert strain.shape == () and strain.dtype == jnp.float64
