@@ -42,17 +42,21 @@ def stop_gradient(tree):
     return jax.tree_util.tree_map(lambda v: jax.lax.stop_gradient(v) if eqx.is_inexact_array(v) else v, tree)
 
 
-_JACOBI_SWEEPS = 6  # cyclic sweeps: Jacobi converges quadratically, a 3 x 3 matrix to round-off in 4 or 5
+_JACOBI_SWEEPS = 5  # cyclic sweeps: Jacobi converges quadratically, a 3 x 3 matrix to round-off in 4 (2e4 random,
+# held, nearly diagonal and diagonally dominant matrices over 16 decades: residual 1e-15 of |A| after 4, 8e-6 after 3)
 
 
 def symmetric_eigen3(A: Float[Array, "3 3"]) -> tuple[Float[Array, " 3"], Float[Array, "3 3"]]:
     """Eigenvalues (unsorted) and eigenvectors (columns) of a symmetric 3 x 3 matrix by cyclic Jacobi rotations, a
     fixed number of sweeps on its entries: elementwise arithmetic that XLA fuses, where `jnp.linalg.eigh` calls
     LAPACK on CPU, whose BLAS threads then spin and take cores from the threads solving near-flat landings. For
-    the Newton refinement, whose steps are not differentiated (the maximiser enters under `stop_gradient`)."""
-    a = {(i, j): A[i, j] for i in range(3) for j in range(i, 3)}
-    v = {(i, j): jnp.asarray(float(i == j), A.dtype) for i in range(3) for j in range(3)}
-    for _ in range(_JACOBI_SWEEPS):
+    the Newton refinement, whose steps are not differentiated (the maximiser enters under `stop_gradient`). The
+    sweeps are a loop: unrolled, they were a tenth of a plate drop's program and of its compile time."""
+    upper = [(i, j) for i in range(3) for j in range(i, 3)]
+    every = [(i, j) for i in range(3) for j in range(3)]
+
+    def sweep(_, state):
+        a, v = dict(zip(upper, state[0])), dict(zip(every, state[1]))
         for p, q, r in ((0, 1, 2), (0, 2, 1), (1, 2, 0)):
             apq = a[p, q]
             nonzero = apq != 0
@@ -68,6 +72,11 @@ def symmetric_eigen3(A: Float[Array, "3 3"]) -> tuple[Float[Array, " 3"], Float[
             for i in range(3):
                 vp, vq = v[i, p], v[i, q]
                 v[i, p], v[i, q] = c * vp - s * vq, s * vp + c * vq
+        return [a[k] for k in upper], [v[k] for k in every]
+
+    start = ([A[k] for k in upper], [jnp.asarray(float(i == j), A.dtype) for i, j in every])
+    a, v = jax.lax.fori_loop(0, _JACOBI_SWEEPS, sweep, start)
+    a, v = dict(zip(upper, a)), dict(zip(every, v))
     return (jnp.stack([a[0, 0], a[1, 1], a[2, 2]], axis=-1),
             jnp.stack([jnp.stack([v[i, j] for j in range(3)], axis=-1) for i in range(3)], axis=-2))
 
