@@ -34,10 +34,14 @@ def _value(field, number):
     return number
 
 
+_BOX = bd.Scene.default().replace(**{"housing.depth": 0.06})
+_BOX = _BOX.replace(**{"housing.principal_inertia": tuple(np.asarray(_BOX.housing.moments).tolist())})
+
+
 def _base(field):
-    """The default scene; in a 60 mm deep box for the moments of a box (on a plane section they are refused)."""
-    scene = bd.Scene.default()
-    return scene.replace(**{"housing.depth": 0.06}) if field == "housing.principal_inertia" else scene
+    """The default scene; for the box's own fields, a 60 mm deep box with its principal moments given (on a plane
+    section they are refused): one scene structure per kind of housing, so one jitted program each."""
+    return _BOX if field in ("housing.depth", "housing.principal_inertia") else bd.Scene.default()
 
 
 def _names(message: str, field: str) -> bool:

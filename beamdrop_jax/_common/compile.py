@@ -182,12 +182,20 @@ def preload_programs(folder, names) -> threading.Thread:
             except Exception as error:  # noqa: BLE001 - the call loads or compiles it itself and says why
                 future.set_exception(error)
 
+    def load_one(parts, future):
+        try:
+            future.set_result(_load(parts))
+        except Exception as error:  # noqa: BLE001 - as above
+            future.set_exception(error)
+
     def load():
-        for parts, future in jobs:
-            try:
-                future.set_result(_load(parts))
-            except Exception as error:  # noqa: BLE001 - as above
-                future.set_exception(error)
+        # One thread per program: XLA loads without Python's lock, and a plate's drop waits for its modes' program
+        # and its drop's (60 ms and 390 ms to load on 2 cores) together instead of one after the other.
+        loaders = [threading.Thread(target=load_one, args=job, daemon=True) for job in jobs]
+        for loader in loaders:
+            loader.start()
+        for loader in loaders:
+            loader.join()
 
     thread = threading.Thread(target=load, name="beamdrop-preload", daemon=True)
     thread.start()

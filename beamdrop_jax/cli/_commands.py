@@ -160,8 +160,9 @@ def cmd_drop(args, output):
         rows = [{"t_ms": float(t) * 1e3, **{f"gauge{i + 1}_microstrain": float(strain[i, j]) * 1e6
                                              for i in range(len(gauges))}} for j, t in enumerate(np.asarray(g.t))]
         output.wrote(write_csv(rows, Path(args.out) / "gauges.csv"))
-        readings = [{"x_mm": gx * 1e3, "y_mm": gy * 1e3, "peak_strain_microstrain": float(g.peak_strain[i]) * 1e6,
-                     "peak_time_ms": float(g.peak_time[i]) * 1e3} for i, (gx, gy) in enumerate(gauges)]
+        peak_strain, peak_time = np.asarray(g.peak_strain), np.asarray(g.peak_time)  # an indexed JAX array compiles
+        readings = [{"x_mm": gx * 1e3, "y_mm": gy * 1e3, "peak_strain_microstrain": float(peak_strain[i]) * 1e6,
+                     "peak_time_ms": float(peak_time[i]) * 1e3} for i, (gx, gy) in enumerate(gauges)]
         output.report["gauges"] = readings
         for i, reading in enumerate(readings):
             output.say(summary_text(reading, f"Gauge {i + 1} (largest principal surface strain)"))
