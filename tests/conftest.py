@@ -93,7 +93,11 @@ def pytest_runtest_teardown(item, nextitem):
     and the notebooks' kernels near the machine's 23 GB; a worker of a CI run died unannounced). Clearing JAX's
     caches and returning the freed heap to the system takes a worker back to a few hundred MB (measured); a program
     needed again comes from the persistent compilation cache."""
+    with open("/tmp/rss.log", "a") as f:
+        f.write(f"{os.getpid()} {_resident_bytes()/2**30:.2f} {item.nodeid}\n")
     if _resident_bytes() > _RSS_LIMIT:
+        with open("/tmp/rss.log", "a") as f:
+            f.write(f"{os.getpid()} CLEAR\n")
         import ctypes
         import gc
 

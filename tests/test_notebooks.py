@@ -16,7 +16,7 @@ SMALL = {
     "05_placement.ipynb": "STEPS = 4\nSTARTS = 1",
     "06_speed_vs_accuracy.ipynb": "RERUN = False",
     "07_clatter_and_campaigns.ipynb": "N_ANGLES = 7\nMAX_IMPACTS = 3\nWRITE_FIGURES = False",
-    "08_plates_and_mounts.ipynb": "BASIS = (8, 6)\nEDGES = (\"SFSF\", \"FFFF + 4 screws\")\nSTEPS = 2\nSTARTS = 1",
+    "08_plates_and_mounts.ipynb": "BASIS = (8, 6)\nEDGES = (\"FFFF + 4 screws\",)\nSTEPS = 2\nSTARTS = 1",
     "10_landings.ipynb": "N_ANGLES = 1\nWRITE_FIGURES = False\nBOARDS = (\"beam (default phone)\",)",
     "11_box_drops.ipynb": "N_TILTS = 3\nWRITE_FIGURES = False",
     "09_validation.ipynb": "N_THETA = 41\nFE_ELEMENTS = (20, 40)\nFE_STEPS_US = (4.0, 2.0)\nPLATE_MESHES_MM = (8.0,)\n"
