@@ -77,7 +77,7 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda item: not any(name in item.nodeid for name in _LONGEST))
 
 
-_RSS_LIMIT = 6 * 2**30  # bytes per test worker
+_RSS_LIMIT = 4 * 2**30  # bytes per test worker
 
 
 def _resident_bytes() -> int:
@@ -92,8 +92,8 @@ def pytest_runtest_teardown(item, nextitem):
     """Keep each test worker under `_RSS_LIMIT`: its compiled programs grew to 9 GB by the end of a run (two workers
     and the notebooks' kernels near the machine's 23 GB; a worker of a CI run died unannounced). Clearing JAX's
     caches and returning the freed heap to the system takes a worker back to about 2 GB (measured); a program
-    needed again comes from the persistent compilation cache, but is traced again. At 4 GB each worker cleared two
-    or three times a run (measured), each time retracing what its next tests share."""
+    needed again comes from the persistent compilation cache, traced again. Each worker clears two or three times
+    a run (measured); a limit of 6 GB (one clear at most, 10.5 GB in use on the machine) ran no faster."""
     if _resident_bytes() > _RSS_LIMIT:
         import ctypes
         import gc
