@@ -331,7 +331,6 @@ SCRIPT = textwrap.dedent(
     runs = {
         "one_device_chunk_1000": dict(batch_size=1000, devices=jax.devices()[:1]),
         "one_device_chunk_96": dict(batch_size=96, devices=jax.devices()[:1]),
-        "eight_devices_chunk_200": dict(batch_size=200),
         "eight_devices_chunk_64": dict(batch_size=64),
     }
     out = {}
